@@ -1,0 +1,40 @@
+"""Names shared by the hand model, the simulator side and the label maths.
+
+The order of these tuples is the order of every joint / sensor vector in the
+project (trajectories, datasets, templates, grasp patterns).
+"""
+
+from __future__ import annotations
+
+#: The 30 joints of the hand-arm, in vector order: 3 prismatic arm joints along
+#: world X, Y, Z; 3 revolute arm joints about local X, Y, Z; 2 wrist joints; 22
+#: finger joints in the Shadow Hand layout.
+JOINT_NAMES: tuple[str, ...] = (
+    "ARTx", "ARTy", "ARTz", "ARRx", "ARRy", "ARRz",
+    "WRJ2", "WRJ1",
+    "FFJ4", "FFJ3", "FFJ2", "FFJ1",
+    "MFJ4", "MFJ3", "MFJ2", "MFJ1",
+    "RFJ4", "RFJ3", "RFJ2", "RFJ1",
+    "LFJ5", "LFJ4", "LFJ3", "LFJ2", "LFJ1",
+    "THJ5", "THJ4", "THJ3", "THJ2", "THJ1",
+)
+N_JOINTS = len(JOINT_NAMES)
+
+#: The 17 contact-sensor patches, in vector order (palm and phalanges).
+SENSOR_NAMES: tuple[str, ...] = (
+    "palm",
+    "ff_proximal", "ff_middle", "ff_distal",
+    "mf_proximal", "mf_middle", "mf_distal",
+    "rf_proximal", "rf_middle", "rf_distal",
+    "lf_metacarpal", "lf_proximal", "lf_middle", "lf_distal",
+    "th_proximal", "th_middle", "th_distal",
+)
+N_SENSORS = len(SENSOR_NAMES)
+
+#: Number of anchor points on the palm (paper Fig 3).
+N_ANCHORS = 6
+
+#: Size of the Representation Space per dimension (paper Table II).
+RS_DIMS: tuple[int, ...] = (7, 7, 6, 4, 6, 7)
+
+TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew", "tweeze")
