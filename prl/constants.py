@@ -34,7 +34,11 @@ N_SENSORS = len(SENSOR_NAMES)
 #: Number of anchor points on the palm (paper Fig 3).
 N_ANCHORS = 6
 
-#: Size of the Representation Space per dimension (paper Table II).
-RS_DIMS: tuple[int, ...] = (7, 7, 6, 4, 6, 7)
+#: Size of the Representation Space per dimension, from the rows of paper Table II:
+#: a4 (kinematic motion) lists 7 choices and a5 (tool-object rotation) 6. The paper's
+#: text writes "[7, 7, 6, 4, 6, 7]", which contradicts its own table; we follow the
+#: table (same 49,392 plans). ``assets/plb.yaml`` is the source of truth; a test
+#: checks this tuple against it.
+RS_DIMS: tuple[int, ...] = (7, 7, 6, 4, 7, 6)
 
 TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew", "tweeze")
