@@ -54,10 +54,10 @@ def test_runs_from_two_directories_land_in_one_store(tmp_path: Path) -> None:
     run_a = _run_py(log, cwd=a, env_extra={"MLFLOW_TRACKING_URI": uri})
     run_b = _run_py(log, cwd=b, env_extra={"MLFLOW_TRACKING_URI": uri})
     count = (
-        "import mlflow; mlflow.set_tracking_uri(%r);"
+        f"import mlflow; mlflow.set_tracking_uri({uri!r});"
         "runs = mlflow.search_runs(experiment_names=['t']);"
         "print(len(runs), sorted(runs['params.x.y'].dropna().tolist()),"
-        " int(runs['tags.mlflow.parentRunId'].notna().sum()))" % uri
+        " int(runs['tags.mlflow.parentRunId'].notna().sum()))"
     )
     out = _run_py(count, cwd=tmp_path)
     assert out == "4 ['1', '1'] 2"  # 2 parents (with flattened param) + 2 children
