@@ -1,0 +1,636 @@
+"""Plan executor: a Representation-Space plan vector -> joint drive targets -> simulated episode.
+
+One plan episode (paper Fig 2) runs ``n_frames`` physics frames (1500 by default, 3 s at
+500 Hz) through these stages:
+
+0. ``pregrasp``  from home, put the chosen palm anchor (a2) on the centre line of T_gv, a
+   few cm out along the palm normal, with the palm rotated relative to T_gv by Rx(a0) Rz(a1);
+   fingers open, pre-shaped for the pattern.
+1. ``approach``  move along the palm normal until the anchor is just off the handle surface.
+2. ``grasp``     close the fingers into the pattern's posture (a3). The posture targets lie
+   past the handle, so the PD drives press the phalanges on it; the tool is then held by
+   contact and friction only.
+3. ``lift``      lift the hand (and, if the grasp holds, the tool) straight up.
+4. ``transport`` move above the object, rotating the hand so that the object's Z axis is
+   aligned with the chosen T_fv axis (a5).
+5. ``place``     descend so that T_fv is ~3 cm from the object, at the start of the motion.
+6. ``motion``    the kinematic motion (a4): a fast joint-space displacement along the
+   motion's template (wrist WRJ1 / WRJ2 swing, arm translation along X / Y / Z, arm rotation
+   about the palm centre, finger squeeze).
+
+The transport/place targets are planned at the end of the lift from the *measured* tool pose
+in the palm (what a robot with object tracking would do); the place pose is chosen so that
+the motion's displacement would bring T_fv's leading face onto the object (approach from
+above when the motion allows it). Arm and wrist targets come from ``envs/ik.py``. Targets are
+ramped between waypoints with a minimum-jerk profile and written to the PhysX joint drives
+only when they change; the scene is stepped with ``scene.step()`` directly.
+
+Physical honesty: the executor never sets a pose, velocity or joint state of the tool or the
+object, adds no joint or constraint, and the outcome is the task's ``evaluate()`` of the
+simulated state. NaN / blow-ups end the episode as a failure.
+
+``python -m envs.executor --task hammer --plan 0,3,2,0,0,1 --scenes 50`` reports success
+rates (and ``--random-plans N`` those of uniformly random plans).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from prl.constants import JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS
+
+STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
+"""Stage names; ``EpisodeResult.stage`` holds indices into this tuple."""
+
+_J = {name: i for i, name in enumerate(JOINT_NAMES)}
+FINGER = slice(8, 30)
+
+
+def _posture(**values: float) -> np.ndarray:
+    """A (22,) finger posture from joint-name keyword values (others 0)."""
+    q = np.zeros(N_JOINTS)
+    for name, value in values.items():
+        q[_J[name]] = value
+    return q[FINGER].copy()
+
+
+def _four(j3: float, j2: float, j1: float, j4: float = 0.0, lfj5: float = 0.0) -> dict[str, float]:
+    out = {"LFJ5": lfj5}
+    for f in ("FF", "MF", "RF", "LF"):
+        out.update({f"{f}J4": j4, f"{f}J3": j3, f"{f}J2": j2, f"{f}J1": j1})
+    return out
+
+
+#: Finger postures (22 values, JOINT_NAMES[8:] order) per grasp pattern: (open pre-shape, closed).
+#: Closed targets lie beyond the handle, so the drives keep squeezing after contact.
+GRASP_POSTURES: dict[str, tuple[np.ndarray, np.ndarray]] = {
+    "medium_wrap": (
+        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
+        _posture(**_four(1.3, 1.4, 1.2, lfj5=0.3), THJ5=0.6, THJ4=1.2, THJ3=0.2, THJ2=0.6, THJ1=1.2),
+    ),
+    "parallel_extension": (
+        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
+        _posture(**_four(1.5, 0.0, 0.0), THJ5=0.6, THJ4=1.2, THJ3=0.0, THJ2=0.0, THJ1=0.0),
+    ),
+    "palmar_pinch": (
+        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
+        _posture(FFJ3=1.1, FFJ2=0.9, FFJ1=0.6, THJ5=0.9, THJ4=1.2, THJ3=0.2, THJ2=0.3, THJ1=0.6),
+    ),
+    "precision_disk": (
+        _posture(**_four(0.0, 0.0, 0.0, j4=0.0), THJ5=0.6, THJ4=0.0),
+        _posture(FFJ4=-0.3, MFJ4=-0.1, RFJ4=-0.1, LFJ4=-0.3, **{k: v for k, v in _four(0.9, 1.0, 1.0).items()
+                                                              if not k.endswith("J4")},
+                 THJ5=0.9, THJ4=1.2, THJ3=0.2, THJ2=0.3, THJ1=0.9),
+    ),
+}
+
+#: Joint-space direction and amplitude of each kinematic motion (JOINT_NAMES order). The sign
+#: is chosen per episode (approach the object from above where the motion allows).
+MOTION_TEMPLATES: dict[str, tuple[dict[str, float], float]] = {
+    "wrist_horizontal": ({"WRJ1": 1.0}, 0.45),
+    "wrist_vertical": ({"WRJ2": 1.0}, 0.45),
+    "arm_linear_x": ({"ARTx": 1.0}, 0.035),
+    "arm_linear_y": ({"ARTy": 1.0}, 0.035),
+    "arm_linear_z": ({"ARTz": 1.0}, 0.035),
+    "arm_rotate_palm": ({"ARRz": 1.0}, 0.45),
+    "finger_squeeze": ({**{f"{f}J{j}": 1.0 for f in ("FF", "MF", "RF", "LF") for j in (3, 2, 1)},
+                        "THJ2": 1.0, "THJ1": 1.0}, 0.3),
+}
+#: Fraction of the motion amplitude driven past the planned contact (the drives push through).
+MOTION_OVERSHOOT = 0.6
+
+_FV_AXES: dict[str, tuple[float, float, float]] = {
+    "X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0),
+    "X-Y": (1.0, 1.0, 0.0), "X-Z": (1.0, 0.0, 1.0), "Y-Z": (0.0, 1.0, 1.0),
+}
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """How a plan is executed."""
+
+    n_frames: int = 1500
+    """Physics frames per plan episode (paper: 1500)."""
+    record_every: int = 5
+    """Record one frame every this many physics frames (100 Hz at 500 Hz physics)."""
+    stage_fractions: tuple[float, ...] = (0.17, 0.07, 0.10, 0.10, 0.18, 0.08, 0.30)
+    """Share of ``n_frames`` per stage (``STAGES`` order); normalised to sum to 1."""
+    pregrasp_clearance: float = 0.05
+    """Anchor distance (m) from the handle surface along the palm normal before the approach."""
+    contact_gap: float = 0.006
+    """Anchor distance (m) from the handle surface at the end of the approach."""
+    lift_height: float = 0.10
+    """Lift (m) of the hand after grasping."""
+    hover_height: float = 0.06
+    """Height (m) above the place pose at the end of the transport."""
+    strike_settle_frac: float = 0.15
+    """Part of the motion stage spent holding still before the motion."""
+    strike_ramp_frames: int = 40
+    """Frames over which the motion's displacement is ramped (fast strike)."""
+    blowup_speed: float = 50.0
+    """A tool or hand link faster than this (m/s) counts as a simulation blow-up."""
+
+    def __post_init__(self) -> None:
+        if self.n_frames < 100:
+            raise ValueError(f"n_frames must be >= 100, got {self.n_frames!r}")
+        if self.record_every < 1:
+            raise ValueError(f"record_every must be >= 1, got {self.record_every!r}")
+        if len(self.stage_fractions) != len(STAGES) or min(self.stage_fractions) <= 0:
+            raise ValueError(f"stage_fractions must be {len(STAGES)} positive numbers, got {self.stage_fractions!r}")
+
+    def stage_frames(self) -> np.ndarray:
+        """Frames per stage (ints summing to ``n_frames``)."""
+        f = np.asarray(self.stage_fractions, dtype=np.float64)
+        bounds = np.round(np.cumsum(f / f.sum()) * self.n_frames).astype(int)
+        return np.diff(np.concatenate([[0], bounds]))
+
+
+@dataclass
+class EpisodeResult:
+    """One executed plan: outcome from the simulated state and the recorded trajectory."""
+
+    plan: np.ndarray
+    """(6,) int64 plan vector."""
+    outcome: dict[str, Any]
+    """The task's ``evaluate()`` at the end (plain Python values), plus ``blowup``."""
+    success: bool
+    """``outcome["success"]`` and no blow-up."""
+    frame: np.ndarray
+    """(T,) physics frame index of each record."""
+    stage: np.ndarray
+    """(T,) stage index (into ``STAGES``) of each record."""
+    qpos: np.ndarray
+    """(T, 30) joint positions, ``JOINT_NAMES`` order."""
+    qvel: np.ndarray
+    """(T, 30) joint velocities."""
+    target: np.ndarray
+    """(T, 30) joint drive targets."""
+    force: np.ndarray
+    """(T, 17) contact force per sensor (N)."""
+    contact_pos: np.ndarray
+    """(T, 17, 3) contact position per sensor (world, m)."""
+    contact_normal: np.ndarray
+    """(T, 17, 3) contact normal per sensor (world, unit)."""
+    palm_pose: np.ndarray
+    """(T, 7) palm link pose [x, y, z, qw, qx, qy, qz]."""
+    tool_pose: np.ndarray
+    """(T, 7) tool actor pose."""
+    object_pose: np.ndarray
+    """(T, 7) object frame pose (``object_frame_world``)."""
+    anchors_at_grasp: np.ndarray
+    """(6, 3) world positions of the palm anchors at the end of the grasp stage."""
+    gv_at_grasp: tuple[np.ndarray, np.ndarray, np.ndarray]
+    """T_gv (center, half_extents, R) at the end of the grasp stage."""
+    stage_frames: np.ndarray
+    """(7,) physics frames per stage."""
+    wall_time_s: float
+    """Wall time of the stepping loop (s)."""
+    physics_time_s: float = 0.0
+    """Part of ``wall_time_s`` spent inside ``scene.step()`` (the raw PhysX cost of this episode)."""
+    fps: float = 0.0
+    """Physics frames per second of the loop (incl. target updates and recording)."""
+    notes: list[str] = field(default_factory=list)
+    """Planner notes (e.g. an unreachable target replaced by the nearest reachable one)."""
+
+
+# ----------------------------------------------------------------------------- geometry
+def _rx(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _pose7(p: np.ndarray, r: np.ndarray) -> np.ndarray:
+    import sapien
+
+    m = np.eye(4)
+    m[:3, :3] = r
+    m[:3, 3] = p
+    pose = sapien.Pose(m)
+    return np.concatenate([pose.p, pose.q])
+
+
+def _sapien_pose7(pose: Any) -> np.ndarray:
+    return np.concatenate([np.asarray(pose.p, dtype=np.float64), np.asarray(pose.q, dtype=np.float64)])
+
+
+def _pose_matrix(pose: Any) -> np.ndarray:
+    return np.asarray(pose.to_transformation_matrix(), dtype=np.float64)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1 + 1e-9:  # opposite: rotate pi about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-6:
+            axis = np.cross(a, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def _min_jerk(s: np.ndarray | float) -> np.ndarray | float:
+    s = np.clip(s, 0.0, 1.0)
+    return s**3 * (10 - 15 * s + 6 * s * s)
+
+
+# ----------------------------------------------------------------------------- executor
+class PlanExecutor:
+    """Executes plan vectors on a PRL task environment (``env.unwrapped`` of ``make_env``)."""
+
+    def __init__(self, env: Any, config: ExecutorConfig | None = None) -> None:
+        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        self.config = config or ExecutorConfig()
+        from prl import plb as plb_module
+
+        self.plb = plb_module.load_plb()
+
+    # ------------------------------------------------------------------ public
+    def validate(self, plan: Any) -> np.ndarray:
+        """The plan as an int64 (6,) vector; ``ValueError`` naming the bad value otherwise."""
+        return self.plb.validate_plan(plan)
+
+    def run(self, plan: Any, seed: int | None = None) -> EpisodeResult:
+        """Reset the task with ``seed`` (None: keep the current scene) and execute ``plan``."""
+        plan = self.validate(plan)
+        if seed is not None:
+            self.env.reset(seed=int(seed))
+        return _Episode(self, plan).run()
+
+
+class _Episode:
+    """State of one plan execution."""
+
+    def __init__(self, executor: PlanExecutor, plan: np.ndarray) -> None:
+        from envs import ik
+        from envs.hand_model import palm_anchors
+        from envs.sensors import ContactSensors
+
+        self.ik = ik
+        self.cfg = executor.config
+        self.env = executor.env
+        self.plan = plan
+        names = executor.plb.decode(plan)
+        self.rot_x = np.deg2rad(float(names[0]))
+        self.rot_z = np.deg2rad(float(names[1]))
+        self.anchor = int(names[2])
+        self.pattern = str(names[3])
+        self.motion = str(names[4])
+        self.fv_axis = str(names[5])
+        self.anchor_local = palm_anchors()[self.anchor]
+        agent = self.env.agent
+        self.agent = agent
+        self.art = agent.robot._objs[0]
+        self.joints = self.art.get_active_joints()
+        self.perm = agent.joint_perm
+        self.inv_perm = np.argsort(self.perm)
+        self.palm_body = agent.palm_link._objs[0]
+        self.tool_body = self.env.tool._bodies[0]
+        self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
+        self.notes: list[str] = []
+        self.current_target = self._qpos()
+        self.root = _pose_matrix(self.art.get_root_pose())
+
+    # ------------------------------------------------------------------ state
+    def _qpos(self) -> np.ndarray:
+        return np.asarray(self.art.get_qpos(), dtype=np.float64)[self.perm]
+
+    def _qvel(self) -> np.ndarray:
+        return np.asarray(self.art.get_qvel(), dtype=np.float64)[self.perm]
+
+    def _write_targets(self, q: np.ndarray) -> None:
+        for i in range(N_JOINTS):
+            self.joints[self.perm[i]].set_drive_target(float(q[i]))
+
+    def _solve(self, pos: np.ndarray, rot: np.ndarray, q_ref: np.ndarray, point: np.ndarray | None = None) -> np.ndarray:
+        return self.ik.solve_palm_pose(pos, rot, q_ref, point=point, root=self.root)
+
+    # ------------------------------------------------------------------ planning
+    def _grasp_frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """(gv centre, palm rotation at grasp, palm normal n (world, out of the palm front), radius along n)."""
+        center, half, r_gv = self.env.tool_gv_world()
+        r_palm = r_gv @ _rx(self.rot_x) @ _rz(self.rot_z)
+        out = r_palm[:, 1]  # +Y_palm: from the front face back into the hand; the handle lies along -Y_palm
+        extent = float(np.sum(np.abs(r_gv.T @ out) * half))  # support of T_gv along the palm normal
+        return center, r_palm, out, extent
+
+    def plan_pregrasp(self, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        center, r_palm, out, extent = self._grasp_frame()
+        open_q, _ = GRASP_POSTURES[self.pattern]
+        ref = q_now.copy()
+        ref[FINGER] = open_q
+        ref[6:8] = 0.0
+        far = self._solve(center + out * (extent + self.cfg.pregrasp_clearance), r_palm, ref, self.anchor_local)
+        near = self._solve(center + out * (extent + self.cfg.contact_gap), r_palm, ref, self.anchor_local)
+        return far, near
+
+    def plan_grasp(self, q_near: np.ndarray) -> np.ndarray:
+        q = q_near.copy()
+        q[FINGER] = GRASP_POSTURES[self.pattern][1]
+        return q
+
+    def plan_lift(self, q_grasp: np.ndarray) -> np.ndarray:
+        q = q_grasp.copy()
+        q[_J["ARTz"]] += self.cfg.lift_height
+        return q
+
+    def _motion_vector(self) -> np.ndarray:
+        direction, amplitude = MOTION_TEMPLATES[self.motion]
+        v = np.zeros(N_JOINTS)
+        for name, value in direction.items():
+            v[_J[name]] = value
+        return v * amplitude
+
+    def plan_place(self, q_target_now: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(hover, place, strike) joint targets from the measured tool-in-palm transform."""
+        palm_w = _pose_matrix(self.palm_body.get_entity_pose())
+        tool_w = _pose_matrix(self.tool_body.get_entity_pose())
+        tool_in_palm = np.linalg.inv(palm_w) @ tool_w
+        fv_center_local, fv_half = (np.asarray(x, dtype=np.float64) for x in self.env.tool_fv_local)
+        obj_p, obj_r = self.env.object_frame_world()
+        z_obj = obj_r[:, 2]
+        u = np.asarray(_FV_AXES[self.fv_axis])
+        u = u / np.linalg.norm(u)
+        r_tool = tool_w[:3, :3]
+        axis_w = r_tool @ u
+        target_dir = z_obj if np.dot(axis_w, z_obj) >= 0 else -z_obj
+        r_new = _min_rotation(axis_w, target_dir) @ r_tool
+        # leading point of T_fv towards the object: the box support along -z_obj
+        d_local = r_new.T @ (-z_obj)
+        support = float(np.sum(np.abs(d_local) * fv_half))
+        fv_center_w_new_rel = r_new @ fv_center_local
+        # tool pose at contact: T_fv's leading face on the object's top, centred over it
+        p_tool = obj_p + z_obj * support - fv_center_w_new_rel
+        t_tool = np.eye(4)
+        t_tool[:3, :3] = r_new
+        t_tool[:3, 3] = p_tool
+        t_palm = t_tool @ np.linalg.inv(tool_in_palm)
+        motion = self._motion_vector()
+        best = None
+        for sign in (1.0, -1.0):
+            ref = q_target_now.copy()
+            # the contact configuration with the motion completed, the place one before it
+            contact_ref = ref.copy()
+            if self.motion in ("wrist_horizontal", "wrist_vertical"):
+                contact_ref[6:8] = 0.0
+                contact_ref += sign * motion * 0.5
+                contact_ref[6:8] = np.clip(contact_ref[6:8], [-0.52, -0.69], [0.17, 0.48])
+            try:
+                q_contact = self._solve(t_palm[:3, 3], t_palm[:3, :3], contact_ref)
+            except ValueError as exc:
+                self.notes.append(f"place sign {sign:+.0f}: {exc}")
+                continue
+            q_place = q_contact - sign * motion
+            if self.motion == "finger_squeeze":
+                q_place = q_contact.copy()
+                q_place[_J["ARTz"]] += 0.03
+            height = self._fv_height(q_place, tool_in_palm, fv_center_local, obj_p, z_obj, support)
+            if best is None or height > best[0] + 1e-6:
+                best = (height, q_place, q_contact, sign)
+        if best is None:
+            raise ValueError("no reachable place pose: " + "; ".join(self.notes))
+        _, q_place, q_contact, sign = best
+        q_strike = q_contact + sign * motion * MOTION_OVERSHOOT
+        lower, upper = self._limits()
+        q_strike = np.clip(q_strike, lower, upper)
+        q_place = np.clip(q_place, lower, upper)
+        q_hover = q_place.copy()
+        q_hover[_J["ARTz"]] += self.cfg.hover_height
+        return q_hover, q_place, q_strike
+
+    def _fv_height(self, q: np.ndarray, tool_in_palm: np.ndarray, fv_center_local: np.ndarray,
+                   obj_p: np.ndarray, z_obj: np.ndarray, support: float) -> float:
+        m = self.root @ self.ik.link_pose(q)
+        t_tool = m @ tool_in_palm
+        c = t_tool[:3, :3] @ fv_center_local + t_tool[:3, 3]
+        return float(np.dot(c - obj_p, z_obj) - support)
+
+    def _limits(self) -> tuple[np.ndarray, np.ndarray]:
+        lim = np.asarray(self.art.get_qlimit(), dtype=np.float64)[self.perm]
+        return lim[:, 0], lim[:, 1]
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> EpisodeResult:
+        cfg = self.cfg
+        frames = cfg.stage_frames()
+        bounds = np.concatenate([[0], np.cumsum(frames)])
+        n = int(cfg.n_frames)
+        n_rec = (n + cfg.record_every - 1) // cfg.record_every
+        rec = {
+            "frame": np.zeros(n_rec, np.int64), "stage": np.zeros(n_rec, np.int64),
+            "qpos": np.zeros((n_rec, N_JOINTS)), "qvel": np.zeros((n_rec, N_JOINTS)), "target": np.zeros((n_rec, N_JOINTS)),
+            "force": np.zeros((n_rec, N_SENSORS)), "contact_pos": np.zeros((n_rec, N_SENSORS, 3)),
+            "contact_normal": np.zeros((n_rec, N_SENSORS, 3)), "palm_pose": np.zeros((n_rec, 7)),
+            "tool_pose": np.zeros((n_rec, 7)), "object_pose": np.zeros((n_rec, 7)),
+        }
+        lower, upper = self._limits()
+        q_home = self._qpos()
+        self.current_target = q_home.copy()
+        self._write_targets(q_home)
+        waypoints: dict[int, np.ndarray] = {}
+        anchors_at_grasp = np.full((N_ANCHORS, 3), np.nan)
+        gv_at_grasp = self.env.tool_gv_world()
+        blowup = False
+        reason = ""
+        stage = -1
+        plan_targets = np.empty((0, N_JOINTS))
+        moving: np.ndarray = np.zeros(0, np.int64)
+        stage_start = 0
+        scene_step = self.env.scene.step
+        record_every = cfg.record_every
+        perf_counter = time.perf_counter
+        physics_time = 0.0
+        k = 0
+        t0 = time.perf_counter()
+        for frame in range(n):
+            if frame == bounds[stage + 1]:
+                stage += 1
+                stage_start = frame
+                plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
+                if STAGES[stage] == "lift":
+                    anchors_at_grasp = self.ik.anchors_world(self._qpos(), root=self.root)
+                    gv_at_grasp = self.env.tool_gv_world()
+            if moving.size:
+                target = plan_targets[frame - stage_start]
+                for i in moving:
+                    self.joints[self.perm[i]].set_drive_target(float(target[i]))
+                self.current_target = target
+            ts = perf_counter()
+            scene_step()
+            physics_time += perf_counter() - ts
+            if frame % record_every == 0:
+                qpos, qvel = self._qpos(), self._qvel()
+                force, cpos, cnormal = self.sensors.read()
+                tool7 = _sapien_pose7(self.tool_body.get_entity_pose())
+                lin = np.asarray(self.tool_body.get_linear_velocity(), dtype=np.float64)
+                if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(tool7)) and np.all(np.isfinite(qvel))) \
+                        or np.linalg.norm(lin) > cfg.blowup_speed:
+                    blowup = True
+                    reason = f"non-finite or runaway state at frame {frame}"
+                obj_p, obj_r = self.env.object_frame_world()
+                rec["frame"][k] = frame
+                rec["stage"][k] = stage
+                rec["qpos"][k] = qpos
+                rec["qvel"][k] = qvel
+                rec["target"][k] = self.current_target
+                rec["force"][k] = force
+                rec["contact_pos"][k] = cpos
+                rec["contact_normal"][k] = cnormal
+                rec["palm_pose"][k] = _sapien_pose7(self.palm_body.get_entity_pose())
+                rec["tool_pose"][k] = tool7
+                rec["object_pose"][k] = _pose7(obj_p, obj_r)
+                k += 1
+                if blowup:
+                    break
+        wall = time.perf_counter() - t0
+        rec = {key: value[:k] for key, value in rec.items()}
+        info = self.env.evaluate()
+        outcome = {key: _to_python(value) for key, value in info.items()}
+        outcome["blowup"] = blowup
+        if blowup:
+            outcome["success"] = False
+            outcome["fail"] = True
+            self.notes.append(reason)
+        success = bool(outcome.get("success", False)) and not blowup
+        n_stepped = int(rec["frame"][-1]) + 1 if k else 0
+        return EpisodeResult(
+            plan=self.plan.copy(), outcome=outcome, success=success, anchors_at_grasp=anchors_at_grasp,
+            gv_at_grasp=tuple(np.asarray(x).copy() for x in gv_at_grasp), stage_frames=frames,
+            wall_time_s=wall, physics_time_s=physics_time, fps=(n if not blowup else n_stepped) / wall if wall > 0 else 0.0,
+            notes=self.notes, **rec,
+        )
+
+    def _stage_trajectory(self, stage: int, n_frames: int, waypoints: dict[int, np.ndarray],
+                          lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-frame targets (n_frames, 30) of a stage (min-jerk ramp from the current target to the
+        stage's waypoint, planned now from the measured state) and the joints whose target moves."""
+        start_q = self.current_target.copy()
+        try:
+            end_q = self._plan_stage(stage, waypoints, start_q)
+        except ValueError as exc:  # unreachable: hold still, the plan then fails physically
+            self.notes.append(f"{STAGES[stage]}: {exc}")
+            end_q = start_q.copy()
+        end_q = np.clip(end_q, lower, upper)
+        waypoints[stage] = end_q
+        if STAGES[stage] == "motion":
+            settle = int(n_frames * self.cfg.strike_settle_frac)
+            ramp_start, ramp_len = settle, max(1, min(self.cfg.strike_ramp_frames, n_frames - settle))
+        else:
+            ramp_start, ramp_len = 0, n_frames
+        s = (np.arange(n_frames) + 1 - ramp_start) / ramp_len
+        targets = start_q + (end_q - start_q) * _min_jerk(s)[:, None]
+        moving = np.nonzero(np.abs(end_q - start_q) > 1e-12)[0]
+        return targets, moving
+
+    def _plan_stage(self, stage: int, waypoints: dict[int, np.ndarray], start_q: np.ndarray) -> np.ndarray:
+        name = STAGES[stage]
+        if name == "pregrasp":
+            far, near = self.plan_pregrasp(start_q)
+            self._near = near
+            return far
+        if name == "approach":
+            return self._near
+        if name == "grasp":
+            return self.plan_grasp(start_q)
+        if name == "lift":
+            return self.plan_lift(start_q)
+        if name == "transport":
+            hover, place, strike = self.plan_place(start_q)
+            self._place, self._strike = place, strike
+            return hover
+        if name == "place":
+            return self._place
+        return self._strike
+
+
+def _to_python(value: Any) -> Any:
+    if hasattr(value, "detach"):
+        value = value.detach().cpu().numpy()
+    value = np.asarray(value)
+    if value.size == 1:
+        item = value.reshape(-1)[0].item()
+        return item
+    return value.tolist()
+
+
+# ----------------------------------------------------------------------------- CLI
+def _parse_plan(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"plan must be comma-separated integers, got {text!r}") from exc
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Execute PRL plans in simulation and report success rates.")
+    parser.add_argument("--task", default="hammer")
+    parser.add_argument("--plan", type=_parse_plan, default=[0, 3, 2, 0, 0, 1], help="e.g. 0,3,2,0,0,1")
+    parser.add_argument("--scenes", type=int, default=20, help="randomised scenes for the given plan")
+    parser.add_argument("--random-plans", type=int, default=0, help="also run this many uniformly random plans")
+    parser.add_argument("--seed", type=int, default=0, help="first scene seed")
+    parser.add_argument("--frames", type=int, default=1500)
+    parser.add_argument("--verbose", action="store_true")
+    args = parser.parse_args(argv)
+
+    import envs.agents  # noqa: F401  (registers prl_hand)
+    from envs.tasks import make_env
+
+    env = make_env(args.task)
+    executor = PlanExecutor(env, ExecutorConfig(n_frames=args.frames))
+    plan = executor.validate(args.plan)
+    print(f"task {args.task}, plan {plan.tolist()}: {executor.plb.describe(plan)}")
+    ok, fps, ratio = [], [], []
+    for i in range(args.scenes):
+        result = executor.run(plan, seed=args.seed + i)
+        ok.append(result.success)
+        fps.append(result.fps)
+        if i > 0:  # the first episode pays one-off imports (pytorch-kinematics)
+            ratio.append(result.physics_time_s / result.wall_time_s)
+        if args.verbose:
+            print(f"  seed {args.seed + i}: success={result.success} descent={result.outcome.get('nail_descent_cm')} "
+                  f"fps={result.fps:.0f} notes={result.notes}")
+    if args.scenes:
+        print(f"plan {plan.tolist()}: success {np.sum(ok)}/{len(ok)} = {np.mean(ok):.2f}; "
+              f"executor {np.mean(fps):.0f} frames/s")
+    if args.random_plans:
+        rng = np.random.default_rng(args.seed)
+        rand_ok = []
+        for i in range(args.random_plans):
+            random_plan = np.array([rng.integers(0, s) for s in executor.plb.sizes])
+            result = executor.run(random_plan, seed=10_000 + args.seed + i)
+            rand_ok.append(result.success)
+            if args.verbose:
+                print(f"  random {random_plan.tolist()}: success={result.success} "
+                      f"descent={result.outcome.get('nail_descent_cm')}")
+        print(f"uniformly random plans: success {np.sum(rand_ok)}/{len(rand_ok)} = {np.mean(rand_ok):.2f}")
+    # raw physics limit on the same scene, for the speed ratio
+    env.reset(seed=args.seed)
+    scene = env.unwrapped.scene
+    t0 = time.perf_counter()
+    for _ in range(1500):
+        scene.step()
+    raw = 1500 / (time.perf_counter() - t0)
+    if args.scenes:
+        print(f"raw scene.step() on the reset scene (idle hand): {raw:.0f} frames/s")
+        if ratio:
+            print(f"executor speed / raw scene.step() speed on the same episodes "
+                  f"(physics time / loop time): {np.mean(ratio):.2f}")
+    env.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,38 @@
+"""The PRL tasks as registered ManiSkill3 environments, and ``make_env`` to create them by short name."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+from envs.tasks import hammer  # noqa: F401  (registers PRL-Hammer-v1)
+from envs.tasks.base import PRLTaskEnv
+
+TASK_ENV_IDS: dict[str, str] = {
+    "hammer": "PRL-Hammer-v1",
+}
+"""Short task name -> registered ManiSkill environment id."""
+
+DEFAULT_ENV_KWARGS: dict[str, Any] = {
+    "num_envs": 1,
+    "sim_backend": "physx_cpu",
+    "render_mode": None,
+    "obs_mode": "state_dict",
+    "robot_uids": "prl_hand",
+}
+"""Defaults for ``make_env``: one CPU-simulated scene, no rendering, the PRL hand."""
+
+
+def make_env(task: str, **kwargs: Any) -> gym.Env:
+    """Create the environment of ``task`` ("hammer", ...); ``kwargs`` override ``DEFAULT_ENV_KWARGS``.
+
+    Returns the ``gym.make`` wrapper; ``env.unwrapped`` is the ``PRLTaskEnv``.
+    Raises ``ValueError`` naming ``task`` and the known tasks when ``task`` is unknown.
+    """
+    if task not in TASK_ENV_IDS:
+        raise ValueError(f"unknown task {task!r}; known tasks: {sorted(TASK_ENV_IDS)}")
+    return gym.make(TASK_ENV_IDS[task], **(DEFAULT_ENV_KWARGS | kwargs))
+
+
+__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "make_env"]

@@ -1,0 +1,205 @@
+"""Shared base class of the four PRL tool-use tasks (hammer, sweep, unscrew, tweeze).
+
+World frame: Z up, the table top is the plane z = 0, metres, kilograms, seconds.
+
+Every task rebuilds its scene on every reset (``reconfiguration_freq=1``): tool and
+object *sizes* are domain-randomised and PhysX shapes cannot be resized after they
+are built, so ``_load_scene`` samples all of an episode's random values from the
+episode's seeded generator (``self._batched_episode_rng[0]``, seeded by ManiSkill
+from ``reset(seed=...)`` just before ``_load_scene``) and stores them in
+``self.scene_params``. ``_initialize_episode`` then places the bodies from those
+stored values without drawing new numbers, so the same seed gives the same scene.
+
+The plan executor (``envs/executor.py``) relies on the public API below:
+``task_name``, ``tool``, ``tool_gv_local``/``tool_fv_local``, ``tool_gv_world()``,
+``tool_fv_world()``, ``object_frame_world()``, ``scene_params`` and ``evaluate()``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import sapien
+import torch
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.utils.structs import Actor
+from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
+from sapien import physx
+
+Box = tuple[np.ndarray, np.ndarray]
+"""An axis-aligned box in some frame: (center (3,), half_extents (3,)), metres."""
+
+WorldBox = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""An oriented box in the world frame: (center (3,), half_extents (3,), R (3, 3)), R's columns = box axes."""
+
+SIM_FREQ = 500
+"""Physics steps per second (dt = 0.002 s, the PhysX step advised for stable grasps)."""
+CONTROL_FREQ = 50
+"""Control steps per second of ``env.step`` (10 physics steps per control step)."""
+SOLVER_POSITION_ITERATIONS = 25
+"""PhysX position iterations per step (>= 20 advised for stable multi-finger grasps)."""
+
+TABLE_HALF_SIZE = (0.6, 0.6, 0.375)
+"""Half extents of the static table box; its top is the plane z = 0."""
+TABLE_FRICTION = 0.8
+"""Static = dynamic friction of the table and the other static props."""
+
+
+def pose_to_numpy(raw_pose: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """Convert a ManiSkill raw pose (1, 7) [x, y, z, qw, qx, qy, qz] to (position (3,), rotation matrix (3, 3))."""
+    values = raw_pose.detach().cpu().numpy().reshape(-1, 7)[0].astype(np.float64)
+    matrix = sapien.Pose(values[:3], values[3:]).to_transformation_matrix()
+    return values[:3].copy(), np.asarray(matrix[:3, :3], dtype=np.float64)
+
+
+def yaw_matrix(yaw: float) -> np.ndarray:
+    """Rotation matrix (3, 3) about world Z by ``yaw`` radians."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def pose_from_matrix(position: np.ndarray, rotation: np.ndarray) -> sapien.Pose:
+    """A ``sapien.Pose`` from a position (3,) and a rotation matrix (3, 3)."""
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = position
+    return sapien.Pose(transform)
+
+
+class PRLTaskEnv(BaseEnv):
+    """Base of the PRL tasks: simulation settings, the table, and the executor-facing API.
+
+    Subclasses implement ``_load_scene`` (call ``_build_table`` and sample everything
+    random from ``_scene_rng()``, set ``self.tool``, ``tool_gv_local``, ``tool_fv_local``
+    and ``scene_params``), ``_initialize_episode`` (call ``_reset_hand``),
+    ``object_frame_world`` and ``evaluate``. Only the CPU backend with one environment
+    is supported (the scene is rebuilt on every reset).
+    """
+
+    SUPPORTED_ROBOTS: ClassVar[list[str]] = ["prl_hand"]
+    SUPPORTED_REWARD_MODES = ("dense", "normalized_dense", "sparse", "none")
+
+    task_name: str = ""
+    """Short task name used across the pipeline ("hammer", "sweep", ...)."""
+    tool: Actor
+    """The tool: one dynamic rigid actor held by contact and friction only."""
+    tool_gv_local: Box
+    """Graspable volume T_gv as (center, half_extents) in the tool's actor frame, metres."""
+    tool_fv_local: Box
+    """Functional volume T_fv as (center, half_extents) in the tool's actor frame, metres."""
+    scene_params: dict[str, float]
+    """The randomised values of the current episode as plain floats (SI units)."""
+
+    def __init__(self, *args: Any, robot_uids: str = "prl_hand", **kwargs: Any) -> None:
+        kwargs.setdefault("reconfiguration_freq", 1)
+        if kwargs["reconfiguration_freq"] != 1:
+            raise ValueError(
+                f"PRL tasks rebuild their randomised scene on every reset; reconfiguration_freq must be 1, "
+                f"got {kwargs['reconfiguration_freq']!r}"
+            )
+        self.scene_params = {}
+        super().__init__(*args, robot_uids=robot_uids, **kwargs)
+
+    @property
+    def _default_sim_config(self) -> SimConfig:
+        return SimConfig(
+            sim_freq=SIM_FREQ,
+            control_freq=CONTROL_FREQ,
+            scene_config=SceneConfig(
+                solver_position_iterations=SOLVER_POSITION_ITERATIONS,
+                solver_velocity_iterations=1,
+            ),
+            default_materials_config=DefaultMaterialsConfig(
+                static_friction=TABLE_FRICTION, dynamic_friction=TABLE_FRICTION, restitution=0.0
+            ),
+        )
+
+    # ------------------------------------------------------------------ scene helpers
+    def _scene_rng(self) -> np.random.RandomState:
+        """The episode's seeded generator (ManiSkill's per-episode RNG of environment 0)."""
+        return self._batched_episode_rng[0]
+
+    def _build_table(self) -> None:
+        """Build the static table (top at z = 0) and a floor plane under it."""
+        hx, hy, hz = TABLE_HALF_SIZE
+        material = physx.PhysxMaterial(TABLE_FRICTION, TABLE_FRICTION, 0.0)
+        builder = self.scene.create_actor_builder()
+        builder.add_box_collision(half_size=[hx, hy, hz], material=material)
+        builder.add_box_visual(
+            half_size=[hx, hy, hz], material=sapien.render.RenderMaterial(base_color=[0.6, 0.5, 0.4, 1])
+        )
+        builder.initial_pose = sapien.Pose(p=[0.0, 0.0, -hz])
+        self.table = builder.build_static(name="table")
+        floor = self.scene.create_actor_builder()
+        floor.add_plane_collision(
+            sapien.Pose(p=[0, 0, -2 * hz], q=[0.7071068, 0, -0.7071068, 0]), material=material
+        )
+        floor.initial_pose = sapien.Pose()
+        self.floor = floor.build_static(name="floor")
+
+    def _build_static_box(
+        self,
+        name: str,
+        center: np.ndarray,
+        half_size: np.ndarray,
+        yaw: float,
+        color: tuple[float, float, float, float],
+    ) -> Actor:
+        """Build a static box at ``center`` (world) rotated by ``yaw`` about Z."""
+        builder = self.scene.create_actor_builder()
+        material = physx.PhysxMaterial(TABLE_FRICTION, TABLE_FRICTION, 0.0)
+        builder.add_box_collision(half_size=list(half_size), material=material)
+        builder.add_box_visual(
+            half_size=list(half_size), material=sapien.render.RenderMaterial(base_color=list(color))
+        )
+        builder.initial_pose = pose_from_matrix(np.asarray(center, dtype=np.float64), yaw_matrix(yaw))
+        return builder.build_static(name=name)
+
+    def _reset_hand(self) -> None:
+        """Put the hand at its rest keyframe ("rest" if the agent defines one, else its first keyframe)."""
+        if self.agent is None:
+            return
+        keyframes = self.agent.keyframes
+        if not keyframes:
+            return
+        keyframe = keyframes.get("rest", next(iter(keyframes.values())))
+        self.agent.robot.set_pose(keyframe.pose)
+        self.agent.reset(torch.as_tensor(np.asarray(keyframe.qpos), dtype=torch.float32, device=self.device))
+
+    # ------------------------------------------------------------------ executor API
+    def _local_box_to_world(self, box: Box) -> WorldBox:
+        position, rotation = pose_to_numpy(self.tool.pose.raw_pose)
+        center, half = box
+        return (
+            position + rotation @ np.asarray(center, dtype=np.float64),
+            np.asarray(half, dtype=np.float64).copy(),
+            rotation,
+        )
+
+    def tool_gv_world(self) -> WorldBox:
+        """T_gv in the world frame from the tool's simulated pose: (center (3,), half_extents (3,), R (3, 3))."""
+        return self._local_box_to_world(self.tool_gv_local)
+
+    def tool_fv_world(self) -> WorldBox:
+        """T_fv in the world frame from the tool's simulated pose: (center (3,), half_extents (3,), R (3, 3))."""
+        return self._local_box_to_world(self.tool_fv_local)
+
+    def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:
+        """The target object's frame in the world, (position (3,), R (3, 3)) with Z up."""
+        raise NotImplementedError
+
+    def tool_is_broken(self) -> torch.Tensor:
+        """(1,) bool: the tool's simulated pose is NaN/inf (a PhysX blow-up) or it fell below the table top."""
+        raw = self.tool.pose.raw_pose
+        not_finite = ~torch.isfinite(raw).all(dim=-1)
+        fell = raw[..., 2] < -0.05
+        return not_finite | fell
+
+    # ------------------------------------------------------------------ ManiSkill hooks
+    def _get_obs_agent(self) -> dict:
+        return {} if self.agent is None else super()._get_obs_agent()
+
+    def get_state_dict(self) -> dict:
+        """ManiSkill's state dict; also works without an agent (``robot_uids="none"``, used by scene tests)."""
+        return self.scene.get_sim_state() if self.agent is None else super().get_state_dict()
