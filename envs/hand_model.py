@@ -251,6 +251,24 @@ def generate(kinematics: Path | str = KINEMATICS_PATH, urdf_out: Path | str = UR
     return urdf_out, srdf_out
 
 
+def verify_generated(kinematics: Path | str = KINEMATICS_PATH, urdf: Path | str = URDF_PATH) -> str:
+    """Check the committed URDF/SRDF equal what the generator writes now; return the URDF's sha256.
+
+    Raises ``HandModelError`` naming the stale or missing file (regenerate with
+    ``python -m envs.hand_model``).
+    """
+    import hashlib
+
+    spec = load_spec(kinematics)
+    urdf = Path(urdf)
+    for path, text in ((urdf, build_urdf(spec)), (urdf.with_suffix(".srdf"), build_srdf(spec))):
+        if not path.is_file():
+            raise HandModelError(f"hand model file {str(path)!r} is missing; run `python -m envs.hand_model`")
+        if path.read_text() != text:
+            raise HandModelError(f"hand model file {str(path)!r} is stale; run `python -m envs.hand_model`")
+    return hashlib.sha256(urdf.read_bytes()).hexdigest()
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--kinematics", default=str(KINEMATICS_PATH), help="input YAML")

@@ -24,6 +24,15 @@ DEFAULT_ENV_KWARGS: dict[str, Any] = {
 """Defaults for ``make_env``: one CPU-simulated scene, no rendering, the PRL hand."""
 
 
+def task_class(task: str) -> type[PRLTaskEnv]:
+    """The environment class of ``task``; ``ValueError`` naming it when unknown."""
+    if task not in TASK_ENV_IDS:
+        raise ValueError(f"unknown task {task!r}; known tasks: {sorted(TASK_ENV_IDS)}")
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    return REGISTERED_ENVS[TASK_ENV_IDS[task]].cls
+
+
 def make_env(task: str, **kwargs: Any) -> gym.Env:
     """Create the environment of ``task`` ("hammer", ...); ``kwargs`` override ``DEFAULT_ENV_KWARGS``.
 
@@ -35,4 +44,4 @@ def make_env(task: str, **kwargs: Any) -> gym.Env:
     return gym.make(TASK_ENV_IDS[task], **(DEFAULT_ENV_KWARGS | kwargs))
 
 
-__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "make_env"]
+__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "make_env", "task_class"]

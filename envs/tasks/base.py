@@ -82,6 +82,10 @@ class PRLTaskEnv(BaseEnv):
 
     task_name: str = ""
     """Short task name used across the pipeline ("hammer", "sweep", ...)."""
+    measure_key: str = ""
+    """Key of ``evaluate()`` holding the task's measured quantity (the paper's reward)."""
+    expert_plan: tuple[int, ...] = ()
+    """A hand-designed plan that should succeed on most randomised scenes (a reference, not a label)."""
     tool: Actor
     """The tool: one dynamic rigid actor held by contact and friction only."""
     tool_gv_local: Box

@@ -113,6 +113,9 @@ class PRLHammerEnv(PRLTaskEnv):
     """
 
     task_name = "hammer"
+    measure_key = "nail_descent_cm"
+    expert_plan = (0, 3, 2, 0, 0, 1)
+    """No tilt, no twist, anchor 2, medium wrap, wrist swing, nail Z || head Y (the paper's Fig 2 / 7 choices)."""
     nail: Articulation
     """Fixed-base nail articulation: link ``nail_base`` (on the board) -> prismatic ``nail_joint`` -> ``nail_head``."""
     nail_head: Link

@@ -1,0 +1,128 @@
+"""The PRL pipeline as a Prefect flow: ``python -m flows.full_pipeline [--profile paper] ...``.
+
+Stages present today: assets (hand model + PLB) -> plan trials per task (the task's expert
+plan, plans sampled from the PLB prior, uniformly random plans, each executed in simulation
+on domain-randomised scenes) -> stage pictures of the expert plan. Every run is one MLflow
+parent run with a child run per stage; see the README for how to look at them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+from prefect import flow
+
+from flows.assets import verify_assets
+from flows.plan_trials import plan_trials
+from flows.stage_pictures import stage_pictures
+from prl import tracking
+from prl.config import ConfigError, PipelineConfig, make_config
+from prl.version import code_version, git_commit
+
+PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
+
+
+def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, out_dir: Path) -> dict[str, float]:
+    import mlflow
+
+    from envs.trials import success_rate
+    from prl.plots import plot_trial_rates
+
+    rates = {k: success_rate(v) for k, v in outcomes_by_kind.items()}
+    for kind, outcomes in outcomes_by_kind.items():
+        mlflow.log_metric(f"{task}/{kind}/success_rate", rates[kind])
+        mlflow.log_metric(f"{task}/{kind}/mean_{measure_key}", float(np.mean([o.measure for o in outcomes])))
+        mlflow.log_metric(f"{task}/{kind}/n", len(outcomes))
+    rows = [{"kind": k, "seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure,
+             "fail": o.fail} for k, v in outcomes_by_kind.items() for o in v]
+    mlflow.log_dict({"task": task, "measure": measure_key, "trials": rows}, f"{task}_trials.json")
+    fig = plot_trial_rates(task, rates, {k: len(v) for k, v in outcomes_by_kind.items()},
+                           {k: [o.measure for o in v] for k, v in outcomes_by_kind.items()}, measure_key,
+                           out_dir / f"{task}_trial_rates.png")
+    mlflow.log_artifact(str(fig))
+    return rates
+
+
+@flow(name="prl-full-pipeline", log_prints=True)
+def full_pipeline(profile: str = "quick", tasks: list[str] | None = None, seed: int | None = None,
+                  eval_scenes: int | None = None, episode_frames: int | None = None,
+                  render: bool | None = None, output_dir: str | None = None) -> dict[str, dict[str, float]]:
+    """Run every stage that exists, tracked in MLflow; return success rates per task and plan kind."""
+    cfg = make_config(profile, tasks=tuple(tasks) if tasks else None, seed=seed, eval_scenes=eval_scenes,
+                      episode_frames=episode_frames, render=render,
+                      output_dir=Path(output_dir) if output_dir else None)
+    return run_pipeline(cfg)
+
+
+def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
+    """The flow body (called inside the Prefect flow)."""
+    import mlflow
+
+    if cfg.render:
+        from envs.render_probe import require_rendering
+
+        require_rendering("stage pictures (pass --no-render to skip them)")
+    import envs  # noqa: F401  (registers the hand agent and the tasks)
+    from envs.tasks import task_class
+
+    uri = tracking.configure("prl")
+    version = code_version()
+    out_dir = cfg.output_dir / f"run-seed{cfg.seed}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    print(f"MLflow store: {uri}; outputs: {out_dir}")
+    results: dict[str, dict[str, float]] = {}
+    with tracking.parent_run(f"pipeline-{cfg.profile}", params=cfg,
+                             tags={"code_version": version, "git_commit": git_commit()}) as parent:
+        with tracking.child_run("assets"):
+            summary = verify_assets()
+            mlflow.log_params({k: str(v) for k, v in summary.items()})
+        for task in cfg.tasks:
+            cls = task_class(task)
+            with tracking.child_run(f"trials-{task}", params={"task": task, "scenes": cfg.eval_scenes}):
+                outcomes = {kind: plan_trials(task, kind, cfg.eval_scenes, cfg.seed + 7919 * i, cfg.episode_frames,
+                                              version)
+                            for i, kind in enumerate(PLAN_KINDS)}
+                results[task] = _log_trials(task, outcomes, cls.measure_key, out_dir)
+                print(f"{task}: success rate " + ", ".join(f"{k} {v:.2f}" for k, v in results[task].items()))
+            if cfg.render:
+                with tracking.child_run(f"pictures-{task}"):
+                    paths = stage_pictures(task, tuple(cls.expert_plan), cfg.seed, out_dir / f"{task}_stages")
+                    for path in paths:
+                        mlflow.log_artifact(str(path), artifact_path=f"{task}_stages")
+        print(f"MLflow parent run {parent.info.run_id}: "
+              f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", default="quick", help="quick (default) or paper")
+    parser.add_argument("--tasks", default=None, help="comma-separated tasks, e.g. hammer")
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--scenes", type=int, default=None, help="randomised scenes per plan kind")
+    parser.add_argument("--frames", type=int, default=None, help="physics frames per plan episode")
+    parser.add_argument("--no-render", action="store_true", help="skip stage pictures")
+    parser.add_argument("--output-dir", default=None)
+    args = parser.parse_args(argv)
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")  # no internet here: no telemetry
+    # a first start on a fresh machine migrates the local database; give the ephemeral API time
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
+    tasks = [t.strip() for t in args.tasks.split(",")] if args.tasks else None
+    try:  # validate before any work starts (and before Prefect spins up)
+        make_config(args.profile, tasks=tuple(tasks) if tasks else None, seed=args.seed, eval_scenes=args.scenes,
+                    episode_frames=args.frames, render=False if args.no_render else None,
+                    output_dir=Path(args.output_dir) if args.output_dir else None)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    full_pipeline(profile=args.profile, tasks=tasks, seed=args.seed, eval_scenes=args.scenes,
+                  episode_frames=args.frames, render=False if args.no_render else None, output_dir=args.output_dir)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,31 @@
+"""Code version for cache keys and run tags."""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+_SOURCE_DIRS = ("prl", "envs", "assets")
+
+
+def code_version() -> str:
+    """A digest of the library sources and assets (tracked or not), stable across checkouts."""
+    h = hashlib.sha256()
+    for d in _SOURCE_DIRS:
+        for path in sorted((REPO_ROOT / d).rglob("*")):
+            if path.is_file() and path.suffix in {".py", ".yaml", ".urdf", ".srdf"}:
+                h.update(str(path.relative_to(REPO_ROOT)).encode())
+                h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def git_commit() -> str:
+    """The checked-out git commit, or 'unknown'."""
+    try:
+        res = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True,
+                             timeout=10, check=False)
+        return res.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
