@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -264,12 +265,22 @@ class PlanExecutor:
         """The plan as an int64 (6,) vector; ``ValueError`` naming the bad value otherwise."""
         return self.plb.validate_plan(plan)
 
-    def run(self, plan: Any, seed: int | None = None) -> EpisodeResult:
-        """Reset the task with ``seed`` (None: keep the current scene) and execute ``plan``."""
+    def run(self, plan: Any, seed: int | None = None,
+            on_stage_end: Callable[[str, int], None] | None = None) -> EpisodeResult:
+        """Reset the task with ``seed`` (None: keep the current scene) and execute ``plan``.
+
+        ``on_stage_end(stage_name, frame)``, if given, is called once per stage (``STAGES`` names,
+        in order) right after the stage's last physics frame was stepped and recorded, with that
+        frame's index; the simulated state is then the one at the end of the stage (e.g. to
+        render a picture of it). The hook must not change the simulation. After a blow-up it is
+        called for the stage that blew up (with the last stepped frame) and not for the stages
+        that were never reached. It is invoked only at stage boundaries, never per frame; None
+        (the default) costs nothing. Time spent in the hook is not counted in ``wall_time_s``/``fps``.
+        """
         plan = self.validate(plan)
         if seed is not None:
             self.env.reset(seed=int(seed))
-        return _Episode(self, plan).run()
+        return _Episode(self, plan).run(on_stage_end)
 
 
 class _Episode:
@@ -424,7 +435,7 @@ class _Episode:
         return lim[:, 0], lim[:, 1]
 
     # ------------------------------------------------------------------ loop
-    def run(self) -> EpisodeResult:
+    def run(self, on_stage_end: Callable[[str, int], None] | None = None) -> EpisodeResult:
         cfg = self.cfg
         frames = cfg.stage_frames()
         bounds = np.concatenate([[0], np.cumsum(frames)])
@@ -454,10 +465,15 @@ class _Episode:
         record_every = cfg.record_every
         perf_counter = time.perf_counter
         physics_time = 0.0
+        hook_time = 0.0  # time spent in on_stage_end, left out of wall_time_s
         k = 0
         t0 = time.perf_counter()
         for frame in range(n):
             if frame == bounds[stage + 1]:
+                if on_stage_end is not None and stage >= 0:
+                    th = perf_counter()
+                    on_stage_end(STAGES[stage], frame - 1)
+                    hook_time += perf_counter() - th
                 stage += 1
                 stage_start = frame
                 plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
@@ -496,7 +512,9 @@ class _Episode:
                 k += 1
                 if blowup:
                     break
-        wall = time.perf_counter() - t0
+        wall = time.perf_counter() - t0 - hook_time
+        if on_stage_end is not None and stage >= 0:
+            on_stage_end(STAGES[stage], frame)  # the last stepped frame (n - 1 unless it blew up)
         rec = {key: value[:k] for key, value in rec.items()}
         info = self.env.evaluate()
         outcome = {key: _to_python(value) for key, value in info.items()}
