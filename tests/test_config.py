@@ -1,0 +1,67 @@
+"""Bad configuration fails before any work, naming the bad value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from prl.config import ConfigError, make_config
+
+
+def test_quick_and_paper_profiles() -> None:
+    assert make_config().eval_scenes == 8
+    cfg = make_config("paper", seed=3)
+    assert (cfg.eval_scenes, cfg.seed, cfg.tasks) == (50, 3, ("hammer",))
+
+
+@pytest.mark.parametrize(("overrides", "match"), [
+    ({"tasks": ("hamer",)}, "unknown task 'hamer'"),
+    ({"tasks": ("sweep",)}, "task 'sweep' has no simulation yet"),
+    ({"tasks": ()}, "tasks is empty"),
+    ({"eval_scenes": 0}, "eval_scenes must be a positive integer, got 0"),
+    ({"episode_frames": -5}, "episode_frames must be a positive integer, got -5"),
+    ({"seed": -1}, "seed must be a non-negative integer, got -1"),
+])
+def test_bad_values_are_named(overrides: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        make_config(**overrides)
+
+
+def test_unknown_profile() -> None:
+    with pytest.raises(ConfigError, match="unknown profile 'huge'"):
+        make_config("huge")
+
+
+def test_unwritable_output_dir(tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="a_file/out.*is not writable"):
+        make_config(output_dir=blocker / "out")
+    assert blocker.read_text() == "x"
+
+
+def test_plan_set_kinds_and_errors() -> None:
+    import envs  # noqa: F401
+    from envs.trials import plan_set
+
+    assert plan_set("hammer", "expert", 2, 0) == [(0, 3, 2, 0, 0, 1)] * 2
+    prior = plan_set("hammer", "prior", 20, 5)
+    assert prior == plan_set("hammer", "prior", 20, 5) != plan_set("hammer", "prior", 20, 6)
+    with pytest.raises(ValueError, match="unknown plan kind 'best'"):
+        plan_set("hammer", "best", 1, 0)
+    with pytest.raises(ValueError, match="unknown task 'nail'"):
+        plan_set("nail", "expert", 1, 0)
+
+
+def test_stale_hand_model_is_named(tmp_path: Path) -> None:
+    from envs.hand_model import HandModelError, generate, verify_generated
+
+    urdf, _ = generate(urdf_out=tmp_path / "hand.urdf")
+    assert len(verify_generated(urdf=urdf)) == 64
+    urdf.write_text(urdf.read_text().replace("FFJ3", "FFJ3x", 1))
+    with pytest.raises(HandModelError, match="hand.urdf' is stale"):
+        verify_generated(urdf=urdf)
+    urdf.unlink()
+    with pytest.raises(HandModelError, match="hand.urdf' is missing"):
+        verify_generated(urdf=urdf)
