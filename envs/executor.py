@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from prl.constants import JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS
+from prl.geometry import rot_x, rot_z
 
 STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
 """Stage names; ``EpisodeResult.stage`` holds indices into this tuple."""
@@ -200,24 +201,10 @@ class EpisodeResult:
 
 
 # ----------------------------------------------------------------------------- geometry
-def _rx(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def _rz(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
-
 def _pose7(p: np.ndarray, r: np.ndarray) -> np.ndarray:
-    import sapien
+    from envs.tasks.base import pose_from_matrix
 
-    m = np.eye(4)
-    m[:3, :3] = r
-    m[:3, 3] = p
-    pose = sapien.Pose(m)
-    return np.concatenate([pose.p, pose.q])
+    return _sapien_pose7(pose_from_matrix(p, r))
 
 
 def _sapien_pose7(pose: Any) -> np.ndarray:
@@ -334,7 +321,7 @@ class _Episode:
     def _grasp_frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """(gv centre, palm rotation at grasp, palm normal n (world, out of the palm front), radius along n)."""
         center, half, r_gv = self.env.tool_gv_world()
-        r_palm = r_gv @ _rx(self.rot_x) @ _rz(self.rot_z)
+        r_palm = r_gv @ rot_x(self.rot_x) @ rot_z(self.rot_z)
         out = r_palm[:, 1]  # +Y_palm: from the front face back into the hand; the handle lies along -Y_palm
         extent = float(np.sum(np.abs(r_gv.T @ out) * half))  # support of T_gv along the palm normal
         return center, r_palm, out, extent
@@ -635,18 +622,9 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"  random {random_plan.tolist()}: success={result.success} "
                       f"descent={result.outcome.get('nail_descent_cm')}")
         print(f"uniformly random plans: success {np.sum(rand_ok)}/{len(rand_ok)} = {np.mean(rand_ok):.2f}")
-    # raw physics limit on the same scene, for the speed ratio
-    env.reset(seed=args.seed)
-    scene = env.unwrapped.scene
-    t0 = time.perf_counter()
-    for _ in range(1500):
-        scene.step()
-    raw = 1500 / (time.perf_counter() - t0)
-    if args.scenes:
-        print(f"raw scene.step() on the reset scene (idle hand): {raw:.0f} frames/s")
-        if ratio:
-            print(f"executor speed / raw scene.step() speed on the same episodes "
-                  f"(physics time / loop time): {np.mean(ratio):.2f}")
+    if ratio:
+        print(f"physics share of the executor loop (physics_time_s / wall_time_s): {np.mean(ratio):.2f}; "
+              "for frames/s against raw scene.step() and env.step run `python -m bench.bench_executor`")
     env.close()
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from envs.hand_model import URDF_PATH, palm_anchors
 from prl.constants import JOINT_NAMES, N_ANCHORS
+from prl.geometry import rot_x, rot_y, rot_z
 
 PALM_LINK = "palm"
 ARM = slice(0, 6)
@@ -138,7 +139,7 @@ def solve_palm_pose(target_pos: Any, target_R: Any, q_init: Any, finger_q: Any =
         if best is None or cost < best[0]:
             best = (cost, euler)
     euler = best[1]
-    r_arm = _rx(euler[0]) @ _ry(euler[1]) @ _rz(euler[2])
+    r_arm = rot_x(euler[0]) @ rot_y(euler[1]) @ rot_z(euler[2])
     q[3:6] = euler
     q[0:3] = target_pos - r_arm @ (m[:3, :3] @ local + m[:3, 3])
     lower, upper = _arm_limits()
@@ -164,21 +165,6 @@ def _arm_limits_cached() -> tuple[tuple[float, ...], tuple[float, ...]]:
 def _arm_limits() -> tuple[np.ndarray, np.ndarray]:
     lower, upper = _arm_limits_cached()
     return np.array(lower), np.array(upper)
-
-
-def _rx(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def _ry(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def _rz(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
 def _refine(q: np.ndarray, target_pos: np.ndarray, target_R: np.ndarray, local: np.ndarray) -> np.ndarray:

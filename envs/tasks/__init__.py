@@ -41,7 +41,10 @@ def make_env(task: str, **kwargs: Any) -> gym.Env:
     """
     if task not in TASK_ENV_IDS:
         raise ValueError(f"unknown task {task!r}; known tasks: {sorted(TASK_ENV_IDS)}")
-    return gym.make(TASK_ENV_IDS[task], **(DEFAULT_ENV_KWARGS | kwargs))
+    import torch
+
+    defaults = DEFAULT_ENV_KWARGS | {"render_backend": "gpu" if torch.cuda.is_available() else "cpu"}
+    return gym.make(TASK_ENV_IDS[task], **(defaults | kwargs))
 
 
 __all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "make_env", "task_class"]

@@ -27,6 +27,8 @@ from mani_skill.utils.structs import Actor
 from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
 from sapien import physx
 
+from prl.geometry import rot_z
+
 Box = tuple[np.ndarray, np.ndarray]
 """An axis-aligned box in some frame: (center (3,), half_extents (3,)), metres."""
 
@@ -55,8 +57,7 @@ def pose_to_numpy(raw_pose: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
 
 def yaw_matrix(yaw: float) -> np.ndarray:
     """Rotation matrix (3, 3) about world Z by ``yaw`` radians."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot_z(yaw)
 
 
 def pose_from_matrix(position: np.ndarray, rotation: np.ndarray) -> sapien.Pose:
@@ -123,6 +124,11 @@ class PRLTaskEnv(BaseEnv):
     def _scene_rng(self) -> np.random.RandomState:
         """The episode's seeded generator (ManiSkill's per-episode RNG of environment 0)."""
         return self._batched_episode_rng[0]
+
+    def _load_agent(self, options: dict, initial_agent_poses: Any = None, build_separate: bool = False) -> None:
+        """Load the hand with its fixed root at the world origin (the arm joints carry it from there)."""
+        super()._load_agent(options, sapien.Pose() if initial_agent_poses is None else initial_agent_poses,
+                            build_separate)
 
     def _build_table(self) -> None:
         """Build the static table (top at z = 0) and a floor plane under it."""
