@@ -25,10 +25,12 @@ def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str,
     ax0.set_ylim(0, 1.25)
     ax0.set_ylabel("success rate (simulated)")
     ax0.set_title(f"{task}: plans executed on randomised scenes")
+    top = max([float(np.max(v)) for v in measures.values() if len(v)] + [1e-6])
+    bins = np.linspace(0.0, top, 26)  # shared bins, so the kinds compare bar for bar
     for k in kinds:
         values = np.asarray(measures[k], dtype=float)
         if values.size:
-            ax1.hist(values, bins=20, alpha=0.6, label=k)
+            ax1.hist(values, bins=bins, alpha=0.6, label=k)
     ax1.set_xlabel(measure_name)
     ax1.set_ylabel("episodes")
     ax1.legend()
