@@ -1,0 +1,135 @@
+"""One demonstration on disk: an executed plan with its scene, trajectory and x_manip.
+
+A :class:`Demo` is what scene synthesis keeps and what label recovery and dataset export
+read. It is saved as one ``.npz`` (arrays) with a JSON header (scalars, dicts), written to a
+temporary name and renamed, so a killed writer never leaves a half-written demo.
+
+x_manip (the paper's "manipulation demonstration data from the initial phase", Eq 2) is
+defined here as the state at ``X_MANIP_SAMPLES`` = 8 evenly spaced records of the first two
+stages (pre-grasp and approach: before any grasp, so the features do not give the plan away
+through contacts that the plan caused later), each sample being
+
+    qpos (30) | qvel (30) | sensor force (17) | palm pose (7) | tool pose (7) | object pose (7)
+
+= 98 values per sample, 784 in all (the paper's is 786-d).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prl.constants import N_JOINTS, N_SENSORS
+
+X_MANIP_SAMPLES = 8
+"""Samples of the initial phase in x_manip."""
+X_MANIP_LAYOUT: tuple[tuple[str, int], ...] = (
+    ("qpos", N_JOINTS), ("qvel", N_JOINTS), ("force", N_SENSORS),
+    ("palm_pose", 7), ("tool_pose", 7), ("object_pose", 7),
+)
+"""(field, width) of one x_manip sample, in order."""
+X_MANIP_DIM = X_MANIP_SAMPLES * sum(w for _, w in X_MANIP_LAYOUT)
+"""Length of x_manip (784)."""
+INITIAL_STAGES = (0, 1)
+"""Stage indices (``envs.executor.STAGES``) that make up the initial phase: pre-grasp, approach."""
+
+ARRAY_FIELDS: tuple[str, ...] = (
+    "plan", "frame", "stage", "qpos", "qvel", "target", "force", "contact_pos", "contact_normal",
+    "palm_pose", "tool_pose", "object_pose", "anchors_at_grasp", "gv_center", "gv_half", "gv_rot",
+    "tool_gv_local", "tool_fv_local", "x_manip",
+)
+
+
+@dataclass
+class Demo:
+    """An executed plan: identity, outcome and recorded arrays (see ``envs.executor.EpisodeResult``)."""
+
+    task: str
+    """Task name."""
+    seed: int
+    """Scene seed (domain randomisation)."""
+    text: str
+    """The task sentence of this episode."""
+    success: bool
+    """Success measured in simulation."""
+    outcome: dict[str, Any]
+    """The task's ``evaluate()`` at the end (plain values)."""
+    scene_params: dict[str, float]
+    """The randomised scene values."""
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    """Recorded arrays, keys ``ARRAY_FIELDS``."""
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+
+def x_manip(stage: np.ndarray, fields: dict[str, np.ndarray]) -> np.ndarray:
+    """The (784,) initial-phase feature vector from recorded arrays (see module docstring)."""
+    idx = np.nonzero(np.isin(stage, INITIAL_STAGES))[0]
+    if idx.size == 0:
+        raise ValueError("the recording has no frame of the initial phase (pre-grasp/approach)")
+    pick = idx[np.round(np.linspace(0, idx.size - 1, X_MANIP_SAMPLES)).astype(int)]
+    parts = [np.asarray(fields[name], dtype=np.float64)[pick].reshape(X_MANIP_SAMPLES, -1) for name, _ in X_MANIP_LAYOUT]
+    out = np.concatenate(parts, axis=1).reshape(-1)
+    assert out.size == X_MANIP_DIM, out.size
+    return out.astype(np.float32)
+
+
+def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo:
+    """Build a :class:`Demo` from an ``EpisodeResult`` and the env it ran in (for the scene)."""
+    env = env.unwrapped if hasattr(env, "unwrapped") else env
+    gv_center, gv_half, gv_rot = result.gv_at_grasp
+    arrays = {
+        "plan": np.asarray(result.plan, dtype=np.int64),
+        **{name: np.asarray(getattr(result, name)) for name in (
+            "frame", "stage", "qpos", "qvel", "target", "force", "contact_pos", "contact_normal",
+            "palm_pose", "tool_pose", "object_pose", "anchors_at_grasp")},
+        "gv_center": np.asarray(gv_center), "gv_half": np.asarray(gv_half), "gv_rot": np.asarray(gv_rot),
+        "tool_gv_local": np.concatenate([np.asarray(x, dtype=np.float64) for x in env.tool_gv_local]),
+        "tool_fv_local": np.concatenate([np.asarray(x, dtype=np.float64) for x in env.tool_fv_local]),
+    }
+    arrays["x_manip"] = x_manip(arrays["stage"], arrays)
+    return Demo(task=task, seed=int(seed), text=text, success=bool(result.success),
+                outcome=dict(result.outcome), scene_params={k: float(v) for k, v in env.scene_params.items()},
+                arrays=arrays)
+
+
+def save_demo(demo: Demo, path: Path) -> Path:
+    """Write ``demo`` to ``path`` (.npz) atomically (temporary file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"task": demo.task, "seed": demo.seed, "text": demo.text, "success": demo.success,
+              "outcome": demo.outcome, "scene_params": demo.scene_params}
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8), **demo.arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    return path
+
+
+def load_demo(path: Path) -> Demo:
+    """Read a demo written by :func:`save_demo`; a clear error names a missing or broken file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"demo file {str(path)!r} does not exist")
+    try:
+        with np.load(path) as data:
+            header = json.loads(bytes(data["header"]).decode())
+            arrays = {name: data[name] for name in data.files if name != "header"}
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"demo file {str(path)!r} is unreadable: {exc}") from exc
+    missing = [name for name in ARRAY_FIELDS if name not in arrays]
+    if missing:
+        raise ValueError(f"demo file {str(path)!r} lacks arrays {missing}")
+    return Demo(task=header["task"], seed=int(header["seed"]), text=header["text"], success=bool(header["success"]),
+                outcome=header["outcome"], scene_params=header["scene_params"], arrays=arrays)

@@ -1,0 +1,183 @@
+"""Scene synthesis: domain-randomised scenes x plans sampled from the task prior -> kept demos.
+
+Work is split into a fixed number of shards. Attempt ``j`` of shard ``k`` uses a scene seed and
+a plan drawn from generators seeded by ``(run seed, task, k, j)`` only, so the result does not
+depend on how many workers run the shards, nor on the order they run in. A shard stops when it
+has its share of successes (or ``max_attempts`` attempts).
+
+On disk, per shard ``<out>/<task>/shard<k>/``:
+
+* ``attempts.jsonl`` - one line per finished attempt (seed, plan, success, measure), appended
+  and flushed, so the yield per task and per plan dimension can be computed;
+* ``ep<j>.npz`` - one file per successful attempt (``envs.demo``), written atomically.
+
+Resume: a shard re-reads its ``attempts.jsonl`` and continues after the last finished attempt.
+A demo is saved before its attempt line; an attempt whose demo exists but whose line is
+missing (killed in between) is recorded from the demo and not executed again. Nothing
+finished is lost or duplicated.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from prl.plb import load_plb
+
+
+@dataclass(frozen=True)
+class ShardSpec:
+    """One shard of a synthesis run (picklable: paths and numbers only)."""
+
+    task: str
+    """Task name."""
+    shard: int
+    """Shard index."""
+    n_success: int
+    """Successful demonstrations this shard must keep."""
+    run_seed: int
+    """The run's seed; every attempt's seeds derive from it."""
+    out_dir: Path
+    """Root of the synthesis output (``<out_dir>/<task>/shard<k>``)."""
+    max_attempts: int = 10_000
+    """Give up after this many attempts (a task whose prior almost never succeeds)."""
+    n_frames: int = 1500
+    """Physics frames per plan episode."""
+
+    def __post_init__(self) -> None:
+        if self.n_success < 0:
+            raise ValueError(f"n_success must be >= 0, got {self.n_success!r}")
+        if self.max_attempts <= 0:
+            raise ValueError(f"max_attempts must be > 0, got {self.max_attempts!r}")
+
+    @property
+    def dir(self) -> Path:
+        return Path(self.out_dir) / self.task / f"shard{self.shard:03d}"
+
+
+@dataclass(frozen=True)
+class ShardResult:
+    """What a shard holds after running."""
+
+    task: str
+    shard: int
+    attempts: int
+    successes: int
+    demo_paths: tuple[Path, ...]
+
+
+def attempt_seeds(run_seed: int, task: str, shard: int, attempt: int) -> tuple[int, int]:
+    """(scene seed, plan-sampling seed) of one attempt: a hash of its coordinates."""
+    digest = hashlib.sha256(f"{run_seed}/{task}/{shard}/{attempt}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF, int.from_bytes(digest[4:12], "little")
+
+
+def split_successes(n_success: int, n_shards: int) -> list[int]:
+    """Successes per shard: ``n_success`` split as evenly as possible over ``n_shards``."""
+    if n_shards <= 0:
+        raise ValueError(f"n_shards must be > 0, got {n_shards!r}")
+    base, extra = divmod(n_success, n_shards)
+    return [base + (1 if k < extra else 0) for k in range(n_shards)]
+
+
+def read_attempts(shard_dir: Path) -> list[dict]:
+    """The finished attempts of a shard (a torn last line from a kill is ignored)."""
+    path = Path(shard_dir) / "attempts.jsonl"
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            break  # a line cut by a kill: that attempt is re-run
+    return rows
+
+
+def _append(shard_dir: Path, row: dict) -> None:
+    with open(Path(shard_dir) / "attempts.jsonl", "a") as fh:
+        fh.write(json.dumps(row) + "\n")
+        fh.flush()
+
+
+def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
+    """Run (or resume) one shard until it holds ``spec.n_success`` demos."""
+    from envs.demo import from_episode, load_demo, save_demo
+
+    spec.dir.mkdir(parents=True, exist_ok=True)
+    path = spec.dir / "attempts.jsonl"
+    rows = read_attempts(spec.dir)
+    if path.exists():  # rewrite without a torn tail so appends stay line-aligned
+        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    done = {r["attempt"] for r in rows}
+    successes = sum(r["success"] for r in rows)
+    attempt = len(rows)
+    plb = load_plb()
+    env = executor = None
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=spec.n_success, initial=successes, desc=f"{spec.task} shard {spec.shard}", unit="demo")
+    try:
+        while successes < spec.n_success and attempt < spec.max_attempts:
+            demo_path = spec.dir / f"ep{attempt:06d}.npz"
+            scene_seed, plan_seed = attempt_seeds(spec.run_seed, spec.task, spec.shard, attempt)
+            if attempt not in done and demo_path.exists():  # killed after the demo, before its line
+                demo = load_demo(demo_path)
+                row = {"attempt": attempt, "seed": scene_seed, "plan": demo.plan.tolist(), "success": True,
+                       "measure": _measure(demo.outcome)}
+            else:
+                if env is None:
+                    from envs.executor import ExecutorConfig, PlanExecutor
+                    from envs.tasks import make_env
+
+                    env = make_env(spec.task)
+                    executor = PlanExecutor(env, ExecutorConfig(n_frames=spec.n_frames))
+                rng = np.random.default_rng(plan_seed)
+                plan = plb.sample_plan(spec.task, rng)
+                texts = plb.texts(spec.task)
+                text = texts[int(rng.integers(len(texts)))]
+                result = executor.run(plan, seed=scene_seed)
+                if result.success:
+                    save_demo(from_episode(spec.task, scene_seed, text, result, env), demo_path)
+                row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
+                       "success": bool(result.success), "measure": _measure(result.outcome)}
+            _append(spec.dir, row)
+            successes += row["success"]
+            attempt += 1
+            if bar is not None:
+                bar.update(int(row["success"]))
+                bar.set_postfix(attempts=attempt, yield_=f"{successes / attempt:.2f}")
+    finally:
+        if bar is not None:
+            bar.close()
+        if env is not None:
+            env.close()
+    demos = tuple(sorted(spec.dir.glob("ep*.npz")))
+    return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos)
+
+
+def _measure(outcome: dict) -> float:
+    for key in ("nail_descent_cm", "measure"):
+        if key in outcome:
+            return float(outcome[key])
+    return float("nan")
+
+
+def yield_report(out_dir: Path, task: str) -> dict[str, float]:
+    """Yield (successes / attempts) overall and per plan dimension choice, from the attempt logs."""
+    rows = [r for d in sorted((Path(out_dir) / task).glob("shard*")) for r in read_attempts(d)]
+    report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
+    report["yield"] = report["successes"] / report["attempts"] if rows else 0.0
+    plb = load_plb()
+    for i, dim in enumerate(plb.dims):
+        for c in range(dim.size):
+            picked = [r["success"] for r in rows if r["plan"][i] == c]
+            if picked:
+                report[f"yield/{dim.name}/{c}"] = float(np.mean(picked))
+    return report
