@@ -9,9 +9,10 @@ parent run with a child run per stage; see the README for how to look at them.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from prefect import flow
@@ -19,11 +20,17 @@ from prefect import flow
 from flows.assets import verify_assets
 from flows.plan_trials import plan_trials
 from flows.stage_pictures import stage_pictures
+from flows.synthesize import shard_specs, synthesize
 from prl import tracking
 from prl.config import ConfigError, PipelineConfig, make_config
 from prl.version import code_version, git_commit
 
 PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
+
+
+def synthesis_dir(cfg: PipelineConfig) -> Path:
+    """Where a run's demos live; keyed on what fixes the attempts, so a re-run resumes there."""
+    return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}"
 
 
 def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, out_dir: Path) -> dict[str, float]:
@@ -48,14 +55,17 @@ def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, 
 
 
 @flow(name="prl-full-pipeline", log_prints=True)
-def full_pipeline(profile: str = "quick", tasks: list[str] | None = None, seed: int | None = None,
-                  eval_scenes: int | None = None, episode_frames: int | None = None,
-                  render: bool | None = None, output_dir: str | None = None) -> dict[str, dict[str, float]]:
-    """Run every stage that exists, tracked in MLflow; return success rates per task and plan kind."""
-    cfg = make_config(profile, tasks=tuple(tasks) if tasks else None, seed=seed, eval_scenes=eval_scenes,
-                      episode_frames=episode_frames, render=render,
-                      output_dir=Path(output_dir) if output_dir else None)
-    return run_pipeline(cfg)
+def full_pipeline(profile: str = "quick", overrides: dict[str, Any] | None = None) -> dict[str, dict[str, float]]:
+    """Run every stage that exists, tracked in MLflow; return success rates per task and plan kind.
+
+    ``overrides`` are ``PipelineConfig`` fields (e.g. ``{"tasks": ["hammer"], "demos_per_task": 8}``).
+    """
+    clean = dict(overrides or {})
+    if "tasks" in clean and clean["tasks"] is not None:
+        clean["tasks"] = tuple(clean["tasks"])
+    if clean.get("output_dir"):
+        clean["output_dir"] = Path(clean["output_dir"])
+    return run_pipeline(make_config(profile, **clean))
 
 
 def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
@@ -67,6 +77,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
 
         require_rendering("stage pictures (pass --no-render to skip them)")
     import envs  # noqa: F401  (registers the hand agent and the tasks)
+    from envs.synthesis import yield_report
     from envs.tasks import task_class
 
     uri = tracking.configure("prl")
@@ -93,6 +104,23 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                     paths = stage_pictures(task, tuple(cls.expert_plan), cfg.seed, out_dir / f"{task}_stages")
                     for path in paths:
                         mlflow.log_artifact(str(path), artifact_path=f"{task}_stages")
+        with tracking.child_run("synthesis", params={"demos_per_task": cfg.demos_per_task, "n_shards": cfg.n_shards,
+                                                      "workers": cfg.workers, "dask_address": cfg.dask_address}):
+            demo_dir = synthesis_dir(cfg)
+            specs = shard_specs(list(cfg.tasks), cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir,
+                                n_frames=cfg.episode_frames)
+            t0 = time.perf_counter()
+            shards = synthesize(specs, workers=cfg.workers, dask_address=cfg.dask_address)
+            minutes = (time.perf_counter() - t0) / 60
+            for task in cfg.tasks:
+                report = yield_report(demo_dir, task)
+                mlflow.log_metrics({f"{task}/{k}": v for k, v in report.items()})
+                mlflow.log_dict(report, f"{task}_yield.json")
+                print(f"{task}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
+                      f"(yield {report['yield']:.2f})")
+            new = sum(r.successes for r in shards)
+            mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
+            mlflow.log_param("demo_dir", str(demo_dir))
         print(f"MLflow parent run {parent.info.run_id}: "
               f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
     return results
@@ -105,22 +133,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("--scenes", type=int, default=None, help="randomised scenes per plan kind")
     parser.add_argument("--frames", type=int, default=None, help="physics frames per plan episode")
+    parser.add_argument("--demos-per-task", type=int, default=None, help="demos kept per task by synthesis")
+    parser.add_argument("--shards", type=int, default=None, help="synthesis shards per task")
+    parser.add_argument("--workers", type=int, default=None, help="Dask local-cluster worker processes")
+    parser.add_argument("--dask-address", default=None, help="use this Dask scheduler instead of a local cluster")
     parser.add_argument("--no-render", action="store_true", help="skip stage pictures")
     parser.add_argument("--output-dir", default=None)
     args = parser.parse_args(argv)
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")  # no internet here: no telemetry
-    # a first start on a fresh machine migrates the local database; give the ephemeral API time
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
-    tasks = [t.strip() for t in args.tasks.split(",")] if args.tasks else None
+    overrides = {
+        "tasks": [t.strip() for t in args.tasks.split(",")] if args.tasks else None, "seed": args.seed,
+        "eval_scenes": args.scenes, "episode_frames": args.frames, "demos_per_task": args.demos_per_task,
+        "n_shards": args.shards, "workers": args.workers, "dask_address": args.dask_address,
+        "render": False if args.no_render else None, "output_dir": args.output_dir,
+    }
+    overrides = {k: v for k, v in overrides.items() if v is not None}
     try:  # validate before any work starts (and before Prefect spins up)
-        make_config(args.profile, tasks=tuple(tasks) if tasks else None, seed=args.seed, eval_scenes=args.scenes,
-                    episode_frames=args.frames, render=False if args.no_render else None,
-                    output_dir=Path(args.output_dir) if args.output_dir else None)
+        make_config(args.profile, **{**overrides, "tasks": tuple(overrides.get("tasks", ())) or None,
+                                     "output_dir": Path(args.output_dir) if args.output_dir else None})
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    full_pipeline(profile=args.profile, tasks=tasks, seed=args.seed, eval_scenes=args.scenes,
-                  episode_frames=args.frames, render=False if args.no_render else None, output_dir=args.output_dir)
+    full_pipeline(profile=args.profile, overrides=overrides)
     return 0
 
 

@@ -36,6 +36,14 @@ class PipelineConfig:
     """Where run outputs (pictures, datasets) are written."""
     render: bool = True
     """Render pictures of each executor stage (needs a Vulkan device)."""
+    demos_per_task: int = 4
+    """Successful demonstrations kept per task by scene synthesis (paper: 2,000)."""
+    n_shards: int = 2
+    """Synthesis shards per task (the unit of parallel work; fixed, so results do not depend on workers)."""
+    workers: int = 2
+    """Dask worker processes of the local cluster."""
+    dask_address: str | None = None
+    """Address of a running Dask scheduler to use instead of a local cluster."""
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -47,7 +55,7 @@ class PipelineConfig:
                 raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
             if task not in SIMULATED_TASKS:
                 raise ConfigError(f"task {task!r} has no simulation yet; simulated: {', '.join(SIMULATED_TASKS)}")
-        for name in ("eval_scenes", "episode_frames"):
+        for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -61,8 +69,8 @@ class PipelineConfig:
 
 
 PROFILES: dict[str, dict] = {
-    "quick": {"eval_scenes": 8},
-    "paper": {"eval_scenes": 50},
+    "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2},
+    "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16},
 }
 
 

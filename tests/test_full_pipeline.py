@@ -29,7 +29,8 @@ def test_bad_config_fails_before_work(tmp_path: Path) -> None:
 
 @pytest.mark.sim
 def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
-    res = _pipeline(tmp_path, "--scenes", "2", "--no-render", "--output-dir", str(tmp_path / "out"))
+    res = _pipeline(tmp_path, "--scenes", "2", "--no-render", "--output-dir", str(tmp_path / "out"),
+                    "--demos-per-task", "1", "--shards", "1", "--workers", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     import mlflow
 
@@ -38,7 +39,7 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     parents = runs[runs["tags.mlflow.parentRunId"].isna()]
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parents) == 1
-    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer"}
+    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "synthesis"}
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     trials = children[children["tags.mlflow.runName"] == "trials-hammer"].iloc[0]
     # measured in simulation: the expert plan drives the nail on these two scenes
@@ -47,3 +48,8 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert trials["metrics.hammer/uniform/n"] == 2
     assert parents.iloc[0]["params.tasks"] == "('hammer',)"
     assert (tmp_path / "out" / "run-seed0" / "hammer_trial_rates.png").stat().st_size > 10_000
+    synthesis = children[children["tags.mlflow.runName"] == "synthesis"].iloc[0]
+    assert synthesis["metrics.hammer/successes"] == 1.0
+    assert synthesis["metrics.hammer/attempts"] >= 1.0
+    demos = list((tmp_path / "out" / "synthesis").rglob("ep*.npz"))
+    assert len(demos) == 1

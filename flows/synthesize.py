@@ -1,0 +1,53 @@
+"""Prefect flow: scene synthesis fanned out over shards with Dask (prefect-dask).
+
+A ``LocalCluster`` of ``workers`` processes by default; ``dask_address`` points at any running
+Dask scheduler instead. Shards are the unit of work; their seeds derive from the run seed, so
+the result does not depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+from prefect_dask import DaskTaskRunner
+
+from envs.synthesis import ShardResult, ShardSpec, split_successes
+
+
+@task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}", cache_policy=NO_CACHE)
+def synthesize_shard(spec: ShardSpec) -> ShardResult:
+    """Run or resume one shard. Not cached by Prefect: the shard's own files are its cache
+    (a finished shard returns at once, a killed one resumes)."""
+    import envs  # noqa: F401  (registers the hand and the tasks in the Dask worker)
+    from envs.synthesis import run_shard
+
+    return run_shard(spec)
+
+
+def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int, out_dir: Path,
+                n_frames: int = 1500, max_attempts: int = 10_000) -> list[ShardSpec]:
+    """The shards of a synthesis run (empty shards are left out)."""
+    return [ShardSpec(task=t, shard=k, n_success=n, run_seed=seed, out_dir=Path(out_dir), n_frames=n_frames,
+                      max_attempts=max_attempts)
+            for t in tasks for k, n in enumerate(split_successes(demos_per_task, n_shards)) if n > 0]
+
+
+def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
+    """A Dask task runner: the given scheduler, or a local cluster of ``workers`` single-thread processes."""
+    if dask_address:
+        return DaskTaskRunner(address=dask_address)
+    return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
+                                          "dashboard_address": None})
+
+
+def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None) -> list[ShardResult]:
+    """Run ``specs`` as a Prefect (sub)flow on a Dask task runner; return the shard results in order."""
+
+    @flow(name="prl-synthesize", task_runner=make_task_runner(workers, dask_address))
+    def _synthesize(specs: list[ShardSpec]) -> list[ShardResult]:
+        futures = [synthesize_shard.submit(spec) for spec in specs]
+        return [f.result() for f in futures]
+
+    return _synthesize(specs)
