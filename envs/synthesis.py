@@ -9,7 +9,7 @@ On disk, per shard ``<out>/<task>/shard<k>/``:
 
 * ``attempts.jsonl`` - one line per finished attempt (seed, plan, success, measure), appended
   and flushed, so the yield per task and per plan dimension can be computed;
-* ``ep<j>.npz`` - one file per successful attempt (``envs.demo``), written atomically.
+* ``ep<j>.npz`` - one file per successful attempt (``prl.demo``), written atomically.
 
 Resume: a shard re-reads its ``attempts.jsonl`` and continues after the last finished attempt.
 A demo is saved before its attempt line; an attempt whose demo exists but whose line is
@@ -106,7 +106,7 @@ def _append(shard_dir: Path, row: dict) -> None:
 
 def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     """Run (or resume) one shard until it holds ``spec.n_success`` demos."""
-    from envs.demo import from_episode, load_demo, save_demo
+    from prl.demo import from_episode, load_demo, save_demo
 
     spec.dir.mkdir(parents=True, exist_ok=True)
     path = spec.dir / "attempts.jsonl"

@@ -54,8 +54,8 @@ def _rows(out: Path) -> list[dict]:
 @pytest.mark.sim
 def test_killed_shard_resumes_without_loss_or_duplicates(tmp_path: Path) -> None:
     import envs  # noqa: F401
-    from envs.demo import load_demo
     from envs.synthesis import run_shard
+    from prl.demo import load_demo
 
     clean = run_shard(ShardSpec("hammer", 0, 3, 11, tmp_path / "clean"))
     assert clean.successes == 3 and len(clean.demo_paths) == 3

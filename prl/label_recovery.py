@@ -1,0 +1,409 @@
+"""Label recovery (DESIGN step 3): recompute a demonstration's plan vector from its recorded data.
+
+A demonstration (``prl.demo.Demo``, or its ``.npz``) holds the commanded plan ``a0..a5`` and what
+the simulator recorded while executing it. :func:`recover_plan` ignores the plan and recomputes each
+physical law with the pure label functions of :mod:`prl.labels` (paper Appendix, Eqs 4-9);
+:func:`agreement` then says per dimension how often the recomputed label equals the commanded one.
+Pure numpy: no simulator import (``.npz`` files are read by :func:`prl.demo.load_demo`, not through
+``envs``). A label of -1 means "undeterminable from this recording" (stage never reached, tool not
+in the hand, no motion) and never counts as agreement.
+
+Which recorded frames each dimension uses, and why (stage indices are ``envs.executor.STAGES``):
+
+* **a0, a1 (Eq 4)** -- Euler XYZ angles of the palm link rotation relative to T_gv,
+  ``relative_euler_xyz(R_gv, R_palm)`` (the executor commands ``R_palm = R_gv Rx(a0) Rz(a1)``, so the
+  angles are ``(a0, ~0, a1)``), classified with each dimension's class constant ``c``. T_gv's axes
+  are the tool actor's axes (``tool_gv_local`` is a centre and half extents, no rotation), so
+  ``R_gv`` is the ``tool_pose`` rotation. Frame: the **last record before the hand first touches
+  anything** during approach/grasp (at most the end of the approach stage): the palm has reached its
+  grasp orientation (the approach only translates along the palm normal) and the tool still lies
+  undisturbed. On the 46 sample hammer demos this reproduces the commanded angles to 0.2 deg, except
+  for commanded a0 = -30 deg, which the hand reaches only to -26..-29 deg (the arm stops short: ARRx
+  2-4 deg and ARTz ~1 cm from their targets), so -27.4 deg and above read as -25 deg (3 of those 6
+  demos, all failed).
+  At the end of the grasp stage (kept as ``euler_grasp_deg``) the angle is no longer the hand's
+  choice: closing the medium-wrap fingers rolls the handle about its long axis (T_gv X, the a0 axis)
+  by 3.9-5.0 deg on every expert demo, which crosses the 2.5 deg class boundary (c = 5), so grasp-end
+  labels read -5 deg instead of 0 for the expert plan [0,3,2,0,0,1]: a0 would agree on 0/10 and
+  a1 on 7/10 of the successful samples instead of 10/10 each. A palm that lands on the handle
+  during the approach (ok/ep507) rolls it by 20+ deg before the fingers close.
+* **a2 (Eq 5)** -- ``relative_position_label`` on the T_gv box at the end of the grasp stage
+  (``gv_center/gv_half/gv_rot``) and the six palm anchors recorded at the same instant
+  (``anchors_at_grasp``); the label is the anchor index ``j`` of the best (face, anchor) pair.
+  The executor puts anchor a2 on the line through T_gv's centre along the palm normal, and the
+  handle settles ~20 mm from the palm with an offset along the palm of up to ~15 mm; Eq 5 applied to
+  the actual box still picks the commanded anchor on every successful sample. (A variant that uses
+  the palm normal instead of the box faces is kept as ``anchor_palm_normal`` for diagnosis; it is
+  not better.)
+* **a3 (Eqs 6-7)** -- each sensor is binarised with ``CONTACT_THRESHOLD_N`` = 1 N (the hammer
+  weighs ~2.3 N; 99% of non-zero sensor forces during the lift are above 1.3 N, the rest are
+  grazing touches), ``grasp_label`` per record of the **lift** stage (the tool hangs in the hand:
+  only the grasp holds it), majority vote over those records (records without contact vote -1).
+* **a4 (Eq 9)** -- ``motion_label`` on the mean joint velocity over the **motion** stage, computed as
+  the qpos displacement from its first to its last record (Eq 9's cosine is scale-free, so the
+  displacement is used as is). The instantaneous ``qvel`` samples are dominated by finger chatter
+  against the handle (1-2 rad/s on THJ3 while the hand holds still) and pick wrist or finger
+  templates at random before the strike; the displacement integrates that zero-mean jitter away.
+  A displacement of norm <= ``MIN_MOTION_NORM`` (mixed units, 1 cm / 0.6 deg) is "no motion" (-1).
+* **a5** -- ``tool_object_rot_label`` of the object's Z axis expressed in the tool frame (= T_fv
+  frame: ``tool_fv_local`` has no rotation either), at the record of the **place or motion** stage
+  in which the tool is still held (>= ``MIN_HOLD_CONTACTS`` sensors in contact) and T_fv is
+  closest to the object's frame origin: the moment the tool reaches the object, which is where the
+  executor aligns the axis. The end of the place stage is *not* that moment: for the wrist motions
+  the place pose is the contact pose with the wrist swung back by the whole motion amplitude
+  (0.45 rad), so the expert's head reads ~20 deg off Y there (Y-Z on all six expert demos). No held
+  record in place/motion (the tool was dropped in transport) gives -1.
+
+Findings on the sample hammer demos (``python -m prl.label_recovery /tmp/prl-demos/hammer``; 10
+successful of 46): a0, a1, a2, a4 100%, a5 90%, **a3 0%**.
+
+* a3 is the executor's grasp, not the recovery: the "medium_wrap" posture of
+  ``envs.executor.GRASP_POSTURES`` holds the handle with the distal phalanges (ff, mf, lf, sometimes
+  rf), lf_metacarpal and th_middle, never with the palm or the proximal/middle phalanges that the
+  catalogue's medium-wrap vector lists, so Eq 6 gives precision_disk (Jaccard 4/7 against 1/16 for
+  medium_wrap on the typical contact set) on 9 of 10 successful demos and palmar_pinch on ok/ep507
+  (ff_distal, lf_metacarpal, th_middle, th_distal). Closing that gap is a change to the posture or
+  to the catalogue's pattern (neither is touched here), not to the labels.
+* a5's one miss (ok/ep518) is physical: the hammer slipped out of the hand during the transport
+  (no sensor touches it from there on) and fell onto the nail, which PRL-Hammer-v1 counts as a
+  success; no alignment was ever executed, so a5 is -1.
+* Over all 46 demos (``--all``) a2, a3 and a5 drop (61%, 4%, 30%) because most failed plans never
+  hold the tool (no lift contacts: a3 = -1; no held place/motion record: a5 = -1; the handle knocked
+  away before the anchors are recorded: a2 off), and a4 misses fail/ep537, whose arm did not follow
+  its strike target at all (0.02 rad of finger drift, just above ``MIN_MOTION_NORM``, reads as
+  finger_squeeze).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prl import labels
+from prl.demo import load_demo
+from prl.plb import PhysicalLawsBank, load_plb
+
+#: Stage names of ``envs.executor.STAGES`` (copied: importing ``envs`` would load the simulator).
+STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
+_APPROACH, _GRASP, _LIFT, _PLACE, _MOTION = (STAGES.index(s) for s in ("approach", "grasp", "lift", "place", "motion"))
+
+CONTACT_THRESHOLD_N = 1.0
+"""A sensor is in contact when its force is strictly above this (N); see the module docstring."""
+MIN_HOLD_CONTACTS = 2
+"""The tool counts as held in a record with at least this many sensors in contact."""
+MIN_MOTION_NORM = 0.01
+"""Motion-stage joint displacement norm at or below which there is no motion (a4 = -1)."""
+
+#: Recorded arrays :func:`recover_plan` reads.
+REQUIRED_FIELDS: tuple[str, ...] = (
+    "stage", "qpos", "force", "palm_pose", "tool_pose", "object_pose",
+    "anchors_at_grasp", "gv_center", "gv_half", "gv_rot", "tool_fv_local",
+)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of quaternions ``(..., 4)`` in ``[qw, qx, qy, qz]`` order.
+
+    The quaternion is normalised first (so a non-unit recording still gives a rotation).
+    """
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def point_box_distance(point: np.ndarray, center: np.ndarray, half: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Distance from ``point`` (``(..., 3)``) to an oriented box (0 inside); ``R`` has the box axes as columns."""
+    local = np.einsum("...ji,...j->...i", np.asarray(R, dtype=float), np.asarray(point, float) - center)
+    return np.linalg.norm(np.maximum(np.abs(local) - np.asarray(half, dtype=float), 0.0), axis=-1)
+
+
+@dataclass(frozen=True)
+class RecoveredLabels:
+    """A plan vector recomputed from a recording, with what each label was computed from."""
+
+    plan: np.ndarray
+    """(6,) int64 recovered plan index vector; -1 where the recording does not determine a dimension."""
+    contact_record: int
+    """Record used for a0/a1: the last one before the first hand contact (-1 if none)."""
+    euler_contact_deg: np.ndarray
+    """(3,) palm-vs-T_gv Euler XYZ angles at ``contact_record`` (a0 from [0], a1 from [2]); NaN if none."""
+    euler_grasp_deg: np.ndarray
+    """(3,) the same angles at the end of the grasp stage (after the fingers closed); NaN if none."""
+    anchor_face: int
+    """T_gv face (+X, -X, +Y, -Y, +Z, -Z order) of Eq 5's best pair; -1 if none."""
+    anchor_cos: float
+    """Cosine of Eq 5's best (face, anchor) pair; NaN if none."""
+    anchor_palm_normal: int
+    """Diagnostic: the anchor whose direction from T_gv's centre is closest to the palm normal; -1 if none."""
+    contact_fraction: np.ndarray
+    """(17,) fraction of lift records in which each sensor is in contact."""
+    grasp_jaccard: np.ndarray
+    """(n_patterns,) mean Jaccard similarity (Eq 7) of the lift records' contacts with each pattern."""
+    grasp_votes: np.ndarray
+    """(n_patterns,) lift records whose Eq 6 label is each pattern."""
+    motion_displacement: np.ndarray
+    """(30,) joint displacement over the motion stage (the Eq 9 velocity direction); zeros if none."""
+    motion_cosine: np.ndarray
+    """(n_templates,) cosine of ``motion_displacement`` with each template; NaN if none."""
+    object_z_in_tool: np.ndarray
+    """(3,) unit object Z axis in the tool (= T_fv) frame at ``tool_object_record``; NaN if none."""
+    tool_object_record: int
+    """Record used for a5 (tool held, T_fv closest to the object); -1 if none."""
+    tool_object_angle_deg: float
+    """Angle between the object's Z and the chosen T_fv axis (0..90 deg); NaN if none."""
+    notes: tuple[str, ...] = field(default=())
+    """Why a dimension is -1, in words."""
+
+
+# --------------------------------------------------------------------------- recording access
+
+
+def _field(demo: Any, name: str) -> np.ndarray:
+    try:
+        return np.asarray(getattr(demo, name))
+    except AttributeError:
+        raise ValueError(f"demo has no recorded array {name!r}; needed: {', '.join(REQUIRED_FIELDS)}") from None
+
+
+# --------------------------------------------------------------------------- per dimension
+
+
+def _contacts(force: np.ndarray) -> np.ndarray:
+    return labels.binarize_contacts(force, CONTACT_THRESHOLD_N)
+
+
+def _hand_tool_rotation(stage: np.ndarray, force: np.ndarray, palm_R: np.ndarray, tool_R: np.ndarray
+                        ) -> tuple[int, np.ndarray, np.ndarray]:
+    """(pre-contact record, Euler angles there, Euler angles at the grasp end); -1 / NaN where absent."""
+    nan3 = np.full(3, np.nan)
+    grasp_idx = np.nonzero(stage == _GRASP)[0]
+    euler_grasp = labels.relative_euler_xyz(tool_R[grasp_idx[-1]], palm_R[grasp_idx[-1]]) if grasp_idx.size else nan3
+    approach_idx = np.nonzero(stage == _APPROACH)[0]
+    if approach_idx.size == 0:
+        return -1, nan3, euler_grasp
+    window = np.nonzero((stage == _APPROACH) | (stage == _GRASP))[0]
+    touching = window[_contacts(force[window]).any(axis=-1)]
+    k = int(approach_idx[-1])
+    if touching.size:
+        k = min(k, int(touching[0]) - 1)
+    k = max(k, 0)
+    return k, labels.relative_euler_xyz(tool_R[k], palm_R[k]), euler_grasp
+
+
+def _grasp(stage: np.ndarray, force: np.ndarray, patterns: np.ndarray
+           ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """(majority Eq 6 label, per-sensor contact fraction, mean Jaccard, votes) over the lift records."""
+    n = patterns.shape[0]
+    lift = np.nonzero(stage == _LIFT)[0]
+    if lift.size == 0:
+        return -1, np.zeros(force.shape[-1]), np.zeros(n), np.zeros(n, np.int64)
+    contacts = _contacts(force[lift])
+    per_record = labels.grasp_label(contacts, patterns)
+    votes = np.bincount(per_record[per_record >= 0], minlength=n)
+    jac = labels.jaccard(contacts[:, None, :], patterns).mean(axis=0)
+    no_contact = int(np.sum(per_record < 0))
+    label = int(np.argmax(votes)) if votes.max(initial=0) > no_contact else -1
+    return label, contacts.mean(axis=0), jac, votes
+
+
+def _motion(stage: np.ndarray, qpos: np.ndarray, templates: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """(Eq 9 template index or -1, motion-stage displacement, cosine with each template)."""
+    idx = np.nonzero(stage == _MOTION)[0]
+    if idx.size < 2:
+        return -1, np.zeros(qpos.shape[-1]), np.full(templates.shape[0], np.nan)
+    disp = qpos[idx[-1]] - qpos[idx[0]]
+    unit_t = templates / np.linalg.norm(templates, axis=1, keepdims=True)
+    norm = np.linalg.norm(disp)
+    cos = unit_t @ disp / norm if norm > 0 else np.full(templates.shape[0], np.nan)
+    return int(labels.motion_label(disp, templates, eps=MIN_MOTION_NORM)), disp, cos
+
+
+def _axis_vector(name: str) -> np.ndarray:
+    """The T_fv-frame direction of a ``TOOL_OBJECT_AXES`` name (``"X-Z"`` -> X + Z, not normalised)."""
+    return np.sum([np.eye(3)["XYZ".index(a)] for a in name.split("-")], axis=0)
+
+
+def _tool_object(stage: np.ndarray, force: np.ndarray, tool_pose: np.ndarray, tool_R: np.ndarray,
+                 object_pose: np.ndarray, fv_local: np.ndarray) -> tuple[int, int, np.ndarray, float]:
+    """(label index into TOOL_OBJECT_AXES or -1, record, object Z in the tool frame, angle)."""
+    nan3 = np.full(3, np.nan)
+    held = _contacts(force).sum(axis=-1) >= MIN_HOLD_CONTACTS
+    cand = np.nonzero(((stage == _PLACE) | (stage == _MOTION)) & held)[0]
+    if cand.size == 0:
+        return -1, -1, nan3, float("nan")
+    R = tool_R[cand]
+    fv_center = tool_pose[cand, :3] + np.einsum("tij,j->ti", R, fv_local[:3])
+    dist = point_box_distance(object_pose[cand, :3], fv_center, fv_local[3:], R)
+    k = int(cand[np.argmin(dist)])
+    obj_z = quat_to_matrix(object_pose[k, 3:])[:, 2]
+    z_tool = tool_R[k].T @ obj_z
+    label = int(labels.tool_object_rot_label(z_tool))
+    axes = _axis_vector(labels.TOOL_OBJECT_AXES[label])
+    cos = abs(float(z_tool @ axes)) / (np.linalg.norm(z_tool) * np.linalg.norm(axes))
+    return label, k, z_tool / np.linalg.norm(z_tool), float(np.degrees(np.arccos(min(1.0, cos))))
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def recover_plan(demo: Any, plb: PhysicalLawsBank | None = None) -> RecoveredLabels:
+    """Recompute the plan vector of ``demo`` from its recorded arrays alone (never reads ``demo.plan``).
+
+    ``demo`` is a ``prl.demo.Demo``, or anything with the arrays of
+    ``REQUIRED_FIELDS`` as attributes (shapes as in ``prl.demo``). The frames used per dimension
+    are described in the module docstring. Dimensions are those of ``plb`` in plan order
+    (default catalogue if None): rotation X, rotation Z, anchor, grasp pattern, motion, tool-object axis.
+    """
+    plb = plb or load_plb()
+    stage = _field(demo, "stage").astype(np.int64)
+    force = _field(demo, "force").astype(float)
+    qpos = _field(demo, "qpos").astype(float)
+    palm_pose, tool_pose, object_pose = (_field(demo, n).astype(float) for n in ("palm_pose", "tool_pose", "object_pose"))
+    if not (len(stage) == len(force) == len(qpos) == len(palm_pose) == len(tool_pose) == len(object_pose)):
+        raise ValueError("recorded arrays have different numbers of records: "
+                         f"stage {len(stage)}, force {len(force)}, qpos {len(qpos)}, palm_pose {len(palm_pose)}, "
+                         f"tool_pose {len(tool_pose)}, object_pose {len(object_pose)}")
+    palm_R = quat_to_matrix(palm_pose[:, 3:])
+    tool_R = quat_to_matrix(tool_pose[:, 3:])
+    dims = plb.dims
+    plan = np.full(len(dims), -1, dtype=np.int64)
+    notes: list[str] = []
+
+    # a0, a1: Eq 4 on the palm vs T_gv rotation just before the hand touches anything
+    k_contact, euler_c, euler_g = _hand_tool_rotation(stage, force, palm_R, tool_R)
+    if k_contact >= 0:
+        for d, angle in ((0, euler_c[0]), (1, euler_c[2])):
+            plan[d] = labels.rotation_choice(angle, np.asarray(dims[d].choices, dtype=float), dims[d].class_constant)
+    else:
+        notes.append("no approach stage recorded: a0/a1 undetermined")
+
+    # a2: Eq 5 on T_gv and the anchors at the end of the grasp stage
+    anchors = _field(demo, "anchors_at_grasp").astype(float)
+    gv_center, gv_half, gv_rot = (_field(demo, n).astype(float) for n in ("gv_center", "gv_half", "gv_rot"))
+    face, cos_best, palm_normal_anchor = -1, float("nan"), -1
+    if np.all(np.isfinite(anchors)) and np.all(np.isfinite(gv_rot)):
+        faces = labels.box_face_centers(gv_center, gv_half, gv_rot)
+        face, j = (int(x) for x in labels.relative_position_label(gv_center, faces, anchors))
+        if j >= 0:
+            plan[2] = dims[2].index(j)
+            g = (faces[face] - gv_center) / np.linalg.norm(faces[face] - gv_center)
+            h = (anchors[j] - gv_center) / np.linalg.norm(anchors[j] - gv_center)
+            cos_best = float(g @ h)
+        lift = np.nonzero(stage == _LIFT)[0]
+        if lift.size:
+            normal = palm_R[lift[0]][:, 1]  # +Y_palm: from the handle towards the palm
+            h_all = anchors - gv_center
+            palm_normal_anchor = int(np.argmax(h_all @ normal / np.linalg.norm(h_all, axis=1)))
+    else:
+        notes.append("no anchors/T_gv at grasp (grasp stage not completed): a2 undetermined")
+
+    # a3: Eqs 6-7, majority over the lift records
+    patterns = plb.grasp_matrix()
+    g_label, contact_frac, jac, votes = _grasp(stage, force, patterns)
+    if g_label >= 0:
+        plan[3] = g_label
+    else:
+        notes.append("no contact in most lift records (tool not held): a3 undetermined")
+
+    # a4: Eq 9 on the motion-stage displacement
+    templates = plb.template_matrix()
+    t_label, disp, m_cos = _motion(stage, qpos, templates)
+    if t_label >= 0:
+        plan[4] = int(labels.motion_choice(t_label, plb.template_to_motion))
+    else:
+        notes.append("no joint motion in the motion stage: a4 undetermined")
+
+    # a5: object Z in the T_fv frame when the held tool reaches the object
+    fv_local = _field(demo, "tool_fv_local").astype(float).reshape(-1)
+    o_label, k_obj, z_tool, angle = _tool_object(stage, force, tool_pose, tool_R, object_pose, fv_local)
+    if o_label >= 0:
+        plan[5] = dims[5].index(labels.TOOL_OBJECT_AXES[o_label])
+    else:
+        notes.append("tool not held in any place/motion record: a5 undetermined")
+
+    return RecoveredLabels(
+        plan=plan, contact_record=k_contact, euler_contact_deg=euler_c, euler_grasp_deg=euler_g,
+        anchor_face=face, anchor_cos=cos_best, anchor_palm_normal=palm_normal_anchor,
+        contact_fraction=contact_frac, grasp_jaccard=jac, grasp_votes=votes,
+        motion_displacement=disp, motion_cosine=m_cos, object_z_in_tool=z_tool,
+        tool_object_record=k_obj, tool_object_angle_deg=angle, notes=tuple(notes),
+    )
+
+
+def agreement(commanded: np.ndarray | Sequence[Sequence[int]], recovered: np.ndarray | Sequence[Sequence[int]]
+              ) -> np.ndarray:
+    """Per-dimension fraction (``(D,)`` float) of demos whose recovered label equals the commanded one.
+
+    Both are ``(N, D)`` integer arrays; a recovered -1 is a disagreement. ``N`` must be >= 1.
+    """
+    c = np.asarray(commanded, dtype=np.int64)
+    r = np.asarray(recovered, dtype=np.int64)
+    if c.ndim != 2 or c.shape != r.shape:
+        raise ValueError(f"commanded and recovered must be (N, D) arrays of one shape, got {c.shape} and {r.shape}")
+    if c.shape[0] == 0:
+        raise ValueError("no demos to compare (N = 0)")
+    return np.mean(c == r, axis=0)
+
+
+def format_agreement(fractions: np.ndarray, n: int, plb: PhysicalLawsBank | None = None) -> str:
+    """A readable table: one line per dimension with its name, agreement percentage and count of ``n``."""
+    plb = plb or load_plb()
+    fractions = np.asarray(fractions, dtype=float)
+    if fractions.shape != (len(plb.dims),):
+        raise ValueError(f"expected {len(plb.dims)} fractions, got shape {fractions.shape}")
+    width = max(len(d.name) for d in plb.dims)
+    lines = [f"label agreement over {n} demos (recovered == commanded)"]
+    for i, (d, f) in enumerate(zip(plb.dims, fractions, strict=True)):
+        lines.append(f"  a{i} {d.name:<{width}}  {100 * f:6.1f}%  ({round(float(f) * n)}/{n})")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Recover plan labels from demos (*.npz under DIR, recursively) "
+                                     "and print per-dimension agreement with the commanded plans.")
+    parser.add_argument("dir", type=Path, help="directory searched recursively for *.npz demos")
+    parser.add_argument("--all", action="store_true", help="include failed demos (default: successful only)")
+    parser.add_argument("--verbose", "-v", action="store_true", help="one line per demo")
+    args = parser.parse_args(argv)
+    if not args.dir.is_dir():
+        parser.error(f"not a directory: {str(args.dir)!r}")
+    plb = load_plb()
+    paths = sorted(args.dir.rglob("*.npz"))
+    commanded, recovered = [], []
+    for path in paths:
+        rec = load_demo(path)
+        if not (rec.success or args.all):
+            continue
+        out = recover_plan(rec, plb)
+        commanded.append(rec.plan.astype(np.int64))
+        recovered.append(out.plan)
+        if args.verbose:
+            e = out.euler_contact_deg
+            print(f"{path.relative_to(args.dir)}: success={rec.success} commanded {rec.plan.tolist()} "
+                  f"recovered {out.plan.tolist()} (rot {e[0]:+.1f}/{e[2]:+.1f} deg, "
+                  f"grasp-end {out.euler_grasp_deg[0]:+.1f}/{out.euler_grasp_deg[2]:+.1f}, "
+                  f"a5 off {out.tool_object_angle_deg:.0f} deg){'; ' + '; '.join(out.notes) if out.notes else ''}")
+    if not commanded:
+        print(f"no {'' if args.all else 'successful '}demos under {args.dir}")
+        return 1
+    frac = agreement(np.stack(commanded), np.stack(recovered))
+    print(format_agreement(frac, len(commanded), plb))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
