@@ -18,6 +18,7 @@ import numpy as np
 from prefect import flow
 
 from flows.assets import verify_assets
+from flows.labels import recover_labels
 from flows.plan_trials import plan_trials
 from flows.stage_pictures import stage_pictures
 from flows.synthesize import shard_specs, synthesize
@@ -79,6 +80,8 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     import envs  # noqa: F401  (registers the hand agent and the tasks)
     from envs.synthesis import yield_report
     from envs.tasks import task_class
+    from prl.label_recovery import agreement, format_agreement
+    from prl.plb import load_plb
 
     uri = tracking.configure("prl")
     version = code_version()
@@ -121,6 +124,16 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
             new = sum(r.successes for r in shards)
             mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
             mlflow.log_param("demo_dir", str(demo_dir))
+        labels: dict[str, dict[str, list[list[int]]]] = {}
+        with tracking.child_run("labels"):
+            for task in cfg.tasks:
+                paths = sorted(p for r in shards if r.task == task for p in r.demo_paths)
+                labels[task] = recover_labels(task, paths, version)
+                frac = agreement(np.array(labels[task]["commanded"]), np.array(labels[task]["recovered"]))
+                plb = load_plb()
+                mlflow.log_metrics({f"{task}/agreement/{name}": float(f) for name, f in zip(plb.dim_names, frac)})
+                mlflow.log_dict(labels[task], f"{task}_labels.json")
+                print(f"{task} label agreement:\n" + format_agreement(frac, len(paths), plb))
         print(f"MLflow parent run {parent.info.run_id}: "
               f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
     return results
