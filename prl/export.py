@@ -637,10 +637,25 @@ def _move_into_place(staging: Path, root: Path) -> None:
     else:
         old = root.parent / f".{root.name}.old-{os.getpid()}"
         os.rename(root, old)
-        os.rename(staging, root)
+        try:
+            os.rename(staging, root)
+        except BaseException:
+            os.rename(old, root)
+            raise
         shutil.rmtree(old)
     _fsync_dir(root.parent)
 
 
 def _tree_size(root: Path) -> int:
     return sum(f.stat().st_size for f in Path(root).rglob("*") if f.is_file())
+
+
+def dataset_digest(root: Path) -> str:
+    """A short digest of a dataset's files (names and bytes), for tracking which data a run used."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for path in sorted(p for p in Path(root).rglob("*") if p.is_file()):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]

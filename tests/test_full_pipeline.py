@@ -39,7 +39,7 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     parents = runs[runs["tags.mlflow.parentRunId"].isna()]
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parents) == 1
-    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "synthesis"}
+    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "synthesis", "labels", "export"}
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     trials = children[children["tags.mlflow.runName"] == "trials-hammer"].iloc[0]
     # measured in simulation: the expert plan drives the nail on these two scenes
@@ -53,3 +53,10 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert synthesis["metrics.hammer/attempts"] >= 1.0
     demos = list((tmp_path / "out" / "synthesis").rglob("ep*.npz"))
     assert len(demos) == 1
+    export = children[children["tags.mlflow.runName"] == "export"].iloc[0]
+    assert export["metrics.episodes"] == 1.0
+    from prl.export import validate_lerobot
+
+    report = validate_lerobot(tmp_path / "out" / "datasets" / "hammer-seed0", "prl/hammer")
+    assert report.n_episodes == 1 and report.n_frames == export["metrics.frames"] > 0
+    assert export["params.dataset_digest"] and len(export["params.dataset_digest"]) == 16

@@ -1,0 +1,48 @@
+"""Benchmark: successful demonstrations per minute with 1 and 2 Dask workers, in one run.
+
+Both runs synthesise the same shards (same run seed, so the very same attempts) through the
+real path (Prefect subflow on a Dask ``LocalCluster``) into fresh directories; the ratio of
+their rates is the parallel speed-up. Then the paper profile's wall time is extrapolated from
+the 2-worker rate. ``python -m bench.bench_synthesis [--demos 4] [--shards 2]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+
+def _run(workers: int, demos: int, shards: int, seed: int, out: Path) -> tuple[float, int, int]:
+    from flows.synthesize import shard_specs, synthesize
+
+    specs = shard_specs(["hammer"], demos, seed, shards, out)
+    t0 = time.perf_counter()
+    results = synthesize(specs, workers=workers)
+    wall = time.perf_counter() - t0
+    return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--demos", type=int, default=4, help="successful demos per run")
+    parser.add_argument("--shards", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=3)
+    args = parser.parse_args()
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers in (1, 2):
+            rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}")
+    print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}")
+    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
+    for workers, (wall, demos, attempts) in rows.items():
+        print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")
+    speedup = rows[1][0] / rows[2][0]
+    print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {rows[1][2] == rows[2][2]})")
+    per_min = 60 * rows[2][1] / rows[2][0]
+    print(f"extrapolated paper profile (2,000 hammer demos) at this yield on 2 workers: {2000 / per_min / 60:.1f} h")
+
+
+if __name__ == "__main__":
+    main()
