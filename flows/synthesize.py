@@ -42,12 +42,34 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
                                           "dashboard_address": None})
 
 
+def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None:
+    """A progress bar with the live yield, read from the shards' attempt logs until all shards end."""
+    import time
+
+    from tqdm.auto import tqdm
+
+    from envs.synthesis import read_attempts
+
+    target = sum(spec.n_success for spec in specs)
+    with tqdm(total=target, desc="synthesis", unit="demo") as bar:
+        while True:
+            rows = [r for spec in specs for r in read_attempts(spec.dir)]
+            ok = sum(r["success"] for r in rows)
+            bar.n = min(ok, target)
+            bar.set_postfix(attempts=len(rows), yield_=f"{ok / len(rows):.2f}" if rows else "-")
+            bar.refresh()
+            if all(f.state.is_final() for f in futures):
+                break
+            time.sleep(period_s)
+
+
 def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None) -> list[ShardResult]:
     """Run ``specs`` as a Prefect (sub)flow on a Dask task runner; return the shard results in order."""
 
     @flow(name="prl-synthesize", task_runner=make_task_runner(workers, dask_address))
     def _synthesize(specs: list[ShardSpec]) -> list[ShardResult]:
         futures = [synthesize_shard.submit(spec) for spec in specs]
+        _watch(specs, futures)
         return [f.result() for f in futures]
 
     return _synthesize(specs)
