@@ -1,0 +1,31 @@
+"""Serve the pipeline's deployments to a Prefect server: ``python -m flows.serve``.
+
+With a server running (``prefect server start``) and ``PREFECT_API_URL`` pointing at it, this
+process registers the deployments and executes their runs; trigger one with e.g.
+
+    prefect deployment run 'prl-full-pipeline/quick'
+    prefect deployment run 'prl-full-pipeline/quick' --param overrides='{"demos_per_task": 8}'
+    prefect deployment run 'prl-full-pipeline/paper'
+
+Runs execute in this process, with the repo as working directory, so they use the same
+MLflow store (``<repo>/mlflow.db``) as ``python -m flows.full_pipeline``.
+"""
+
+from __future__ import annotations
+
+from prefect import serve
+
+from flows.full_pipeline import full_pipeline
+
+
+def main() -> None:
+    serve(
+        full_pipeline.to_deployment(name="quick", parameters={"profile": "quick"},
+                                    description="Quick profile: minutes on a laptop."),
+        full_pipeline.to_deployment(name="paper", parameters={"profile": "paper"},
+                                    description="The paper's scale (2,000 demos per task)."),
+    )
+
+
+if __name__ == "__main__":
+    main()
