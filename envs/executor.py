@@ -45,6 +45,7 @@ import numpy as np
 
 from prl.constants import JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS
 from prl.geometry import rot_x, rot_z
+from prl.labels import tool_object_axis
 
 STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
 """Stage names; ``EpisodeResult.stage`` holds indices into this tuple."""
@@ -91,25 +92,17 @@ GRASP_POSTURES: dict[str, tuple[np.ndarray, np.ndarray]] = {
     ),
 }
 
-#: Joint-space direction and amplitude of each kinematic motion (JOINT_NAMES order). The sign
+#: Amplitude of each kinematic motion along its catalogue template (``assets/plb.yaml``
+#: ``motion_templates``, the "+" one): rad for joint rotations, m for arm translations. The sign
 #: is chosen per episode (approach the object from above where the motion allows).
-MOTION_TEMPLATES: dict[str, tuple[dict[str, float], float]] = {
-    "wrist_horizontal": ({"WRJ1": 1.0}, 0.45),
-    "wrist_vertical": ({"WRJ2": 1.0}, 0.45),
-    "arm_linear_x": ({"ARTx": 1.0}, 0.035),
-    "arm_linear_y": ({"ARTy": 1.0}, 0.035),
-    "arm_linear_z": ({"ARTz": 1.0}, 0.035),
-    "arm_rotate_palm": ({"ARRz": 1.0}, 0.45),
-    "finger_squeeze": ({**{f"{f}J{j}": 1.0 for f in ("FF", "MF", "RF", "LF") for j in (3, 2, 1)},
-                        "THJ2": 1.0, "THJ1": 1.0}, 0.3),
+MOTION_AMPLITUDES: dict[str, float] = {
+    "wrist_horizontal": 0.45, "wrist_vertical": 0.45,
+    "arm_linear_x": 0.035, "arm_linear_y": 0.035, "arm_linear_z": 0.035,
+    "arm_rotate_palm": 0.45, "finger_squeeze": 0.3,
 }
 #: Fraction of the motion amplitude driven past the planned contact (the drives push through).
 MOTION_OVERSHOOT = 0.6
 
-_FV_AXES: dict[str, tuple[float, float, float]] = {
-    "X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0),
-    "X-Y": (1.0, 1.0, 0.0), "X-Z": (1.0, 0.0, 1.0), "Y-Z": (0.0, 1.0, 1.0),
-}
 
 
 @dataclass(frozen=True)
@@ -282,6 +275,7 @@ class _Episode:
         self.cfg = executor.config
         self.env = executor.env
         self.plan = plan
+        self.plb = executor.plb
         names = executor.plb.decode(plan)
         self.rot_x = np.deg2rad(float(names[0]))
         self.rot_z = np.deg2rad(float(names[1]))
@@ -295,7 +289,6 @@ class _Episode:
         self.art = agent.robot._objs[0]
         self.joints = self.art.get_active_joints()
         self.perm = agent.joint_perm
-        self.inv_perm = np.argsort(self.perm)
         self.palm_body = agent.palm_link._objs[0]
         self.tool_body = self.env.tool._bodies[0]
         self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
@@ -347,11 +340,9 @@ class _Episode:
         return q
 
     def _motion_vector(self) -> np.ndarray:
-        direction, amplitude = MOTION_TEMPLATES[self.motion]
-        v = np.zeros(N_JOINTS)
-        for name, value in direction.items():
-            v[_J[name]] = value
-        return v * amplitude
+        """Joint displacement of the motion: its first catalogue template times its amplitude."""
+        first = int(np.argmax(self.plb.template_to_motion == self.plan[4]))
+        return self.plb.template_matrix()[first] * MOTION_AMPLITUDES[self.motion]
 
     def plan_place(self, q_target_now: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(hover, place, strike) joint targets from the measured tool-in-palm transform."""
@@ -361,8 +352,7 @@ class _Episode:
         fv_center_local, fv_half = (np.asarray(x, dtype=np.float64) for x in self.env.tool_fv_local)
         obj_p, obj_r = self.env.object_frame_world()
         z_obj = obj_r[:, 2]
-        u = np.asarray(_FV_AXES[self.fv_axis])
-        u = u / np.linalg.norm(u)
+        u = tool_object_axis(self.fv_axis)
         r_tool = tool_w[:3, :3]
         axis_w = r_tool @ u
         target_dir = z_obj if np.dot(axis_w, z_obj) >= 0 else -z_obj

@@ -229,11 +229,6 @@ def _motion(stage: np.ndarray, qpos: np.ndarray, templates: np.ndarray) -> tuple
     return int(labels.motion_label(disp, templates, eps=MIN_MOTION_NORM)), disp, cos
 
 
-def _axis_vector(name: str) -> np.ndarray:
-    """The T_fv-frame direction of a ``TOOL_OBJECT_AXES`` name (``"X-Z"`` -> X + Z, not normalised)."""
-    return np.sum([np.eye(3)["XYZ".index(a)] for a in name.split("-")], axis=0)
-
-
 def _tool_object(stage: np.ndarray, force: np.ndarray, tool_pose: np.ndarray, tool_R: np.ndarray,
                  object_pose: np.ndarray, fv_local: np.ndarray) -> tuple[int, int, np.ndarray, float]:
     """(label index into TOOL_OBJECT_AXES or -1, record, object Z in the tool frame, angle)."""
@@ -249,8 +244,8 @@ def _tool_object(stage: np.ndarray, force: np.ndarray, tool_pose: np.ndarray, to
     obj_z = quat_to_matrix(object_pose[k, 3:])[:, 2]
     z_tool = tool_R[k].T @ obj_z
     label = int(labels.tool_object_rot_label(z_tool))
-    axes = _axis_vector(labels.TOOL_OBJECT_AXES[label])
-    cos = abs(float(z_tool @ axes)) / (np.linalg.norm(z_tool) * np.linalg.norm(axes))
+    axis = labels.tool_object_axis(labels.TOOL_OBJECT_AXES[label])
+    cos = abs(float(z_tool @ axis)) / np.linalg.norm(z_tool)
     return label, k, z_tool / np.linalg.norm(z_tool), float(np.degrees(np.arccos(min(1.0, cos))))
 
 

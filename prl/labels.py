@@ -23,6 +23,15 @@ _TOOL_OBJECT_VECTORS: tuple[tuple[float, float, float], ...] = (
     (0.0, 1.0, 1.0),
 )
 
+
+def tool_object_axis(name: str) -> np.ndarray:
+    """Unit direction (3,) in the T_fv frame of a ``TOOL_OBJECT_AXES`` name (``"X-Z"`` -> (X + Z) / sqrt(2))."""
+    if name not in TOOL_OBJECT_AXES:
+        raise ValueError(f"unknown tool-object axis {name!r}; known: {', '.join(TOOL_OBJECT_AXES)}")
+    v = np.asarray(_TOOL_OBJECT_VECTORS[TOOL_OBJECT_AXES.index(name)])
+    return v / np.linalg.norm(v)
+
+
 #: Vectors shorter than this are "zero length" (no direction).
 EPS = 1e-9
 
