@@ -6,9 +6,7 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from prl.constants import TASKS
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from prl.constants import REPO_ROOT, TASKS
 
 #: Tasks whose simulation exists in ``envs/tasks`` today.
 SIMULATED_TASKS: tuple[str, ...] = ("hammer",)

@@ -6,6 +6,11 @@ project (trajectories, datasets, templates, grasp patterns).
 
 from __future__ import annotations
 
+from pathlib import Path
+
+#: The checkout's root directory (assets, the MLflow store and outputs live under it).
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
 #: The 30 joints of the hand-arm, in vector order: 3 prismatic arm joints along
 #: world X, Y, Z; 3 revolute arm joints about local X, Y, Z; 2 wrist joints; 22
 #: finger joints in the Shadow Hand layout.

@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from prl.constants import JOINT_NAMES, RS_DIMS, SENSOR_NAMES, TASKS
+from prl.constants import JOINT_NAMES, REPO_ROOT, RS_DIMS, SENSOR_NAMES, TASKS
 
 #: Where ``load_plb()`` looks when no path is given.
-DEFAULT_PLB_PATH = Path(__file__).resolve().parents[1] / "assets" / "plb.yaml"
+DEFAULT_PLB_PATH = REPO_ROOT / "assets" / "plb.yaml"
 
 #: Dimensions the rest of the code relies on by name.
 GRASP_DIM = "grasp_pattern"

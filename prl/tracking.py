@@ -16,7 +16,7 @@ from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from prl.constants import REPO_ROOT
 
 
 def default_tracking_uri(root: Path = REPO_ROOT) -> str:

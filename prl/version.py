@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import hashlib
 import subprocess
-from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from prl.constants import REPO_ROOT
+
 _SOURCE_DIRS = ("prl", "envs", "assets")
 
 
