@@ -83,7 +83,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     from mlflow.data.meta_dataset import MetaDataset
 
     import envs  # noqa: F401  (registers the hand agent and the tasks)
-    from envs.synthesis import yield_report
+    from envs.synthesis import read_attempts, yield_report
     from envs.tasks import task_class
     from prl.export import dataset_digest
     from prl.label_recovery import agreement, format_agreement
@@ -118,6 +118,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
             demo_dir = synthesis_dir(cfg)
             specs = shard_specs(list(cfg.tasks), cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir,
                                 n_frames=cfg.episode_frames)
+            already = sum(r["success"] for spec in specs for r in read_attempts(spec.dir))  # resumed runs
             t0 = time.perf_counter()
             shards = synthesize(specs, workers=cfg.workers, dask_address=cfg.dask_address)
             minutes = (time.perf_counter() - t0) / 60
@@ -127,25 +128,23 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                 mlflow.log_dict(report, f"{task}_yield.json")
                 print(f"{task}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
                       f"(yield {report['yield']:.2f})")
-            new = sum(r.successes for r in shards)
+            new = sum(r.successes for r in shards) - already
             mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
             mlflow.log_param("demo_dir", str(demo_dir))
+        demo_paths = {task: sorted(p for r in shards if r.task == task for p in r.demo_paths) for task in cfg.tasks}
+        plb = load_plb()
         labels: dict[str, dict[str, list[list[int]]]] = {}
         with tracking.child_run("labels"):
             for task in cfg.tasks:
-                paths = sorted(p for r in shards if r.task == task for p in r.demo_paths)
-                labels[task] = recover_labels(task, paths, version)
+                labels[task] = recover_labels(task, demo_paths[task], version)
                 frac = agreement(np.array(labels[task]["commanded"]), np.array(labels[task]["recovered"]))
-                plb = load_plb()
                 mlflow.log_metrics({f"{task}/agreement/{name}": float(f) for name, f in zip(plb.dim_names, frac)})
                 mlflow.log_dict(labels[task], f"{task}_labels.json")
-                print(f"{task} label agreement:\n" + format_agreement(frac, len(paths), plb))
+                print(f"{task} label agreement:\n" + format_agreement(frac, len(demo_paths[task]), plb))
         with tracking.child_run("export"):
-            paths, by_path = [], {}
-            for task in cfg.tasks:
-                task_paths = sorted(p for r in shards if r.task == task for p in r.demo_paths)
-                paths += task_paths
-                by_path.update({str(p): lab for p, lab in zip(task_paths, labels[task]["recovered"])})
+            paths = [p for task in cfg.tasks for p in demo_paths[task]]
+            by_path = {str(p): lab for task in cfg.tasks
+                       for p, lab in zip(demo_paths[task], labels[task]["recovered"])}
             repo_id = f"prl/{'-'.join(cfg.tasks)}"
             root = cfg.output_dir / "datasets" / f"{'-'.join(cfg.tasks)}-seed{cfg.seed}"
             report = export_dataset(paths, by_path, root, repo_id)
