@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from prl.constants import JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS
+from prl.demo import X_MANIP_DIM, X_MANIP_LAYOUT, X_MANIP_SAMPLES, x_manip_from_samples
 from prl.geometry import rot_x, rot_z
 from prl.labels import tool_object_axis
 
@@ -129,10 +130,15 @@ class ExecutorConfig:
     """Frames over which the motion's displacement is ramped (fast strike)."""
     blowup_speed: float = 50.0
     """A tool or hand link faster than this (m/s) counts as a simulation blow-up."""
+    observe_frames: int = 40
+    """Physics frames of the observation phase that precedes the plan (hand held at home, tool and
+    object settling); x_manip is sampled from it (see :meth:`PlanExecutor.observe`)."""
 
     def __post_init__(self) -> None:
         if self.n_frames < 100:
             raise ValueError(f"n_frames must be >= 100, got {self.n_frames!r}")
+        if self.observe_frames < X_MANIP_SAMPLES:
+            raise ValueError(f"observe_frames must be >= {X_MANIP_SAMPLES}, got {self.observe_frames!r}")
         if self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every!r}")
         if len(self.stage_fractions) != len(STAGES) or min(self.stage_fractions) <= 0:
@@ -191,6 +197,8 @@ class EpisodeResult:
     """Physics frames per second of the loop (incl. target updates and recording)."""
     notes: list[str] = field(default_factory=list)
     """Planner notes (e.g. an unreachable target replaced by the nearest reachable one)."""
+    x_manip: np.ndarray = field(default_factory=lambda: np.zeros(X_MANIP_DIM, np.float32))
+    """(784,) features of the observation phase before the plan acted (``prl.demo`` layout)."""
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -239,6 +247,7 @@ class PlanExecutor:
         from prl import plb as plb_module
 
         self.plb = plb_module.load_plb()
+        self._observation: np.ndarray | None = None
 
     # ------------------------------------------------------------------ public
     def validate(self, plan: Any) -> np.ndarray:
@@ -260,7 +269,53 @@ class PlanExecutor:
         plan = self.validate(plan)
         if seed is not None:
             self.env.reset(seed=int(seed))
-        return _Episode(self, plan).run(on_stage_end)
+            self._observation = None
+        observation = self._observation if self._observation is not None else self.observe()
+        self._observation = None
+        result = _Episode(self, plan).run(on_stage_end)
+        result.x_manip = observation
+        return result
+
+    def observe(self, seed: int | None = None) -> np.ndarray:
+        """Reset with ``seed`` (None: keep the scene) and run the observation phase; return x_manip.
+
+        The hand's drives hold its current (home) pose for ``observe_frames`` physics frames while
+        the tool and object settle; ``X_MANIP_SAMPLES`` evenly spaced states are taken (layout
+        ``prl.demo.X_MANIP_LAYOUT``). Nothing here depends on a plan, so a policy can choose the plan
+        from these features: call ``observe(seed)``, pick a plan, then ``run(plan)`` (no seed), which
+        continues from the observed state. ``run(plan, seed)`` observes by itself.
+        """
+        if seed is not None:
+            self.env.reset(seed=int(seed))
+        self._observation = _observe(self.env, self.config.observe_frames)
+        return self._observation.copy()
+
+
+def _observe(env: Any, n_frames: int) -> np.ndarray:
+    """Hold the hand's drive targets at its current pose for ``n_frames`` frames; sample x_manip."""
+    from envs.sensors import ContactSensors
+
+    agent = env.agent
+    art = agent.robot._objs[0]
+    perm = agent.joint_perm
+    joints = art.get_active_joints()
+    qpos = np.asarray(art.get_qpos(), dtype=np.float64)
+    for j, q in zip(joints, qpos):
+        j.set_drive_target(float(q))
+    palm, tool = agent.palm_link._objs[0], env.tool._bodies[0]
+    sensors = ContactSensors(env.scene, agent.sensor_links, exclude=agent.robot)
+    picks = set(np.round(np.linspace(0, n_frames - 1, X_MANIP_SAMPLES)).astype(int).tolist())
+    samples: dict[str, list[np.ndarray]] = {name: [] for name, _ in X_MANIP_LAYOUT}
+    for frame in range(n_frames):
+        env.scene.step()
+        if frame in picks:
+            samples["qpos"].append(np.asarray(art.get_qpos(), dtype=np.float64)[perm])
+            samples["qvel"].append(np.asarray(art.get_qvel(), dtype=np.float64)[perm])
+            samples["force"].append(sensors.read()[0])
+            samples["palm_pose"].append(_sapien_pose7(palm.get_entity_pose()))
+            samples["tool_pose"].append(_sapien_pose7(tool.get_entity_pose()))
+            samples["object_pose"].append(_pose7(*env.object_frame_world()))
+    return x_manip_from_samples({name: np.stack(v) for name, v in samples.items()})
 
 
 class _Episode:

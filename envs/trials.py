@@ -7,8 +7,9 @@ Every outcome is the task's ``evaluate()`` of the simulated state.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -50,22 +51,30 @@ def plan_set(task: str, kind: str, n: int, seed: int) -> list[tuple[int, ...]]:
     raise ValueError(f"unknown plan kind {kind!r}; known: 'expert', 'prior', 'uniform'")
 
 
-def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = 1500,
-               progress: bool = True) -> list[TrialOutcome]:
-    """Execute ``plans[i]`` on the scene of ``seeds[i]``; return one outcome each, in order."""
-    if len(plans) != len(seeds):
-        raise ValueError(f"plans and seeds differ in length: {len(plans)} != {len(seeds)}")
+Policy = Callable[[int, Any, np.ndarray], Sequence[int]]
+"""Chooses the plan of trial ``i`` from the live scene: ``policy(i, env, x_manip) -> plan``, where ``env`` is
+the unwrapped task env right after the observation phase (``PlanExecutor.observe``) and ``x_manip``
+the (784,) features of that phase."""
+
+
+def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 1500, randomization: float = 1.0,
+               progress: bool = True, desc: str | None = None) -> list[TrialOutcome]:
+    """On the scene of each seed: observe, let ``policy`` choose a plan, execute it; one outcome each, in order.
+
+    ``randomization`` scales the task's randomisation ranges (1: the training ranges).
+    """
     from envs.executor import ExecutorConfig, PlanExecutor
     from envs.tasks import make_env
 
-    env = make_env(task)
+    env = make_env(task, randomization=randomization)
     try:
         executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames))
         key = env.unwrapped.measure_key
         out: list[TrialOutcome] = []
-        bar = tqdm(list(zip(plans, seeds)), desc=f"{task} trials", disable=not progress, unit="plan")
-        for plan, seed in bar:
-            result = executor.run(plan, seed=int(seed))
+        bar = tqdm(list(seeds), desc=desc or f"{task} trials", disable=not progress, unit="plan")
+        for i, seed in enumerate(bar):
+            x_manip = executor.observe(seed=int(seed))
+            result = executor.run(policy(i, env.unwrapped, x_manip))
             out.append(TrialOutcome(task=task, seed=int(seed), plan=tuple(int(v) for v in result.plan),
                                     success=bool(result.success), measure=float(result.outcome[key]),
                                     fail=bool(result.outcome.get("fail", False))))
@@ -73,6 +82,15 @@ def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], 
         return out
     finally:
         env.close()
+
+
+def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = 1500,
+               progress: bool = True, randomization: float = 1.0) -> list[TrialOutcome]:
+    """Execute ``plans[i]`` on the scene of ``seeds[i]``; return one outcome each, in order."""
+    if len(plans) != len(seeds):
+        raise ValueError(f"plans and seeds differ in length: {len(plans)} != {len(seeds)}")
+    return run_policy(task, lambda i, env, x_manip: plans[i], seeds, n_frames=n_frames,
+                      randomization=randomization, progress=progress)
 
 
 def success_rate(outcomes: Sequence[TrialOutcome]) -> float:

@@ -24,6 +24,7 @@ from flows.labels import recover_labels
 from flows.plan_trials import plan_trials
 from flows.stage_pictures import stage_pictures
 from flows.synthesize import shard_specs, synthesize
+from flows.train_rn import evaluate_in_sim, rn_features, train_pointnet_stage
 from prl import tracking
 from prl.config import ConfigError, PipelineConfig, make_config
 from prl.version import code_version, git_commit
@@ -55,6 +56,94 @@ def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, 
                            out_dir / f"{task}_trial_rates.png")
     mlflow.log_artifact(str(fig))
     return rates
+
+
+def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: str,
+               out_dir: Path) -> dict[str, dict[str, float]]:
+    """PointNet pre-training, RN training on the exported dataset, RN evaluation in simulation (child runs)."""
+    import mlflow
+
+    from prl.features import FEATURE_LAYOUT, split_by_seed
+    from prl.plb import load_plb
+    from prl.plots import plot_rn_probabilities
+    from prl.rn import RNConfig, per_dim_accuracy, predict_proba, save_rn, train_rn
+
+    plb = load_plb()
+    models_dir = cfg.output_dir / "models"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    with tracking.child_run("pointnet", params={"epochs": cfg.pn_epochs, "shapes": cfg.pn_shapes,
+                                                "n_points": cfg.n_points}):
+        pn_path, pn_history, reused = train_pointnet_stage(cfg.pn_epochs, cfg.pn_shapes, cfg.n_points, cfg.seed,
+                                                           version, models_dir)
+        mlflow.log_params({"checkpoint": str(pn_path), "reused": reused})
+        for name, values in pn_history.items():
+            for step, value in enumerate(values):
+                mlflow.log_metric(f"pn/{name}", float(value), step=step)
+        print(f"PointNet {'reused' if reused else 'trained'}: {pn_path.name}, "
+              + ", ".join(f"{k} {v[-1]:.3f}" for k, v in pn_history.items()))
+
+    rn_cfg = RNConfig(epochs=cfg.rn_epochs, seed=cfg.seed)
+    with tracking.child_run("rn-train", params={**{f"rn.{k}": v for k, v in vars(rn_cfg).items()},
+                                                "val_fraction": cfg.rn_val_fraction, "target": "commanded plan",
+                                                "feature_layout": FEATURE_LAYOUT.to_json()}):
+        data = rn_features(dataset_root, repo_id, pn_path, cfg.n_points)
+        x, y = data["x"], data["plan"]
+        train, val = split_by_seed(data["seeds"], cfg.rn_val_fraction, salt=cfg.seed)
+        mlflow.log_metrics({"n_train": len(train), "n_val": len(val)})
+
+        def log_epoch(epoch: int, metrics: dict[str, float]) -> None:
+            mlflow.log_metrics({k: float(v) for k, v in metrics.items()}, step=epoch)
+
+        model, _ = train_rn(x[train], y[train], rn_cfg, x[val], y[val], on_epoch=log_epoch)
+        acc = per_dim_accuracy(model, x[val], y[val])
+        mlflow.log_metrics({f"val_accuracy/{name}": float(a) for name, a in zip(plb.dim_names, acc)})
+        print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in zip(plb.dim_names, acc)))
+        tasks = np.array(data["tasks"])
+        probs_by_task = {t: predict_proba(model, x[val][tasks[val] == t]) for t in cfg.tasks if np.any(tasks[val] == t)}
+        fig = plot_rn_probabilities(probs_by_task, plb.dim_names, [d.choices for d in plb.dims],
+                                    out_dir / "rn_probabilities.png")
+        mlflow.log_artifact(str(fig))
+        rn_path = save_rn(model, rn_cfg, FEATURE_LAYOUT, models_dir / f"rn-seed{cfg.seed}.pt")
+        mlflow.log_artifact(str(rn_path))
+        diff = log_registered_rn(model, x[val])
+        mlflow.log_metric("registered_reload_max_abs_diff", diff)
+
+    results: dict[str, dict[str, float]] = {}
+    with tracking.child_run("rn-eval", params={"scenes_per_split": cfg.rn_eval_scenes,
+                                               "wide_randomization": cfg.wide_randomization}):
+        for split, scale in (("train_ranges", 1.0), ("wide_ranges", cfg.wide_randomization)):
+            for task in cfg.tasks:
+                seeds = [10_000_000 + 1_000 * cfg.seed + i for i in range(cfg.rn_eval_scenes)]
+                out = evaluate_in_sim(rn_path, pn_path, task, seeds, cfg.n_points, cfg.episode_frames, scale,
+                                      cfg.seed + 31)
+                rates = {kind: float(np.mean([o.success for o in outs])) for kind, outs in out.items()}
+                mlflow.log_metrics({f"{task}/{split}/{kind}_success_rate": r for kind, r in rates.items()})
+                mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success,
+                                         "measure": o.measure} for o in outs] for kind, outs in out.items()},
+                                f"{task}_{split}_rn_eval.json")
+                results[f"{task}/rn/{split}"] = rates
+                print(f"{task} ({split}): RN plan success {rates['rn']:.2f}, prior-sampled {rates['prior']:.2f} "
+                      f"on {len(seeds)} unseen scenes")
+    return results
+
+
+def log_registered_rn(model: Any, x_check: np.ndarray) -> float:
+    """Log the RN as an MLflow model with a signature, register it as ``prl-rn``, reload it and return the
+    largest absolute logit difference between the reloaded and the in-memory model on ``x_check``."""
+    import mlflow
+    import torch
+    from mlflow.models import infer_signature
+
+    model.eval()
+    with torch.no_grad():
+        logits = model(torch.as_tensor(x_check, dtype=torch.float32)).numpy()
+    info = mlflow.pytorch.log_model(model, name="rn", signature=infer_signature(x_check, logits),
+                                    registered_model_name="prl-rn")
+    reloaded = mlflow.pytorch.load_model(info.model_uri)
+    reloaded.eval()
+    with torch.no_grad():
+        again = reloaded(torch.as_tensor(x_check, dtype=torch.float32)).numpy()
+    return float(np.max(np.abs(again - logits)))
 
 
 @flow(name="prl-full-pipeline", log_prints=True)
@@ -159,6 +248,8 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                              context="demonstrations")
             print(f"LeRobot dataset {repo_id}: {report.n_episodes} episodes, {report.n_frames} frames at "
                   f"{report.root} (validated on reload)")
+        if cfg.train_rn:
+            results.update(_rn_stages(cfg, report.root, repo_id, version, out_dir))
         print(f"MLflow parent run {parent.info.run_id}: "
               f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
     return results
@@ -176,6 +267,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None, help="Dask local-cluster worker processes")
     parser.add_argument("--dask-address", default=None, help="use this Dask scheduler instead of a local cluster")
     parser.add_argument("--no-render", action="store_true", help="skip stage pictures")
+    parser.add_argument("--skip-rn", action="store_true", help="stop after the dataset export (no PointNet/RN)")
+    parser.add_argument("--rn-epochs", type=int, default=None, help="RN training epochs (paper: 200)")
+    parser.add_argument("--pn-epochs", type=int, default=None, help="PointNet pre-training epochs")
+    parser.add_argument("--pn-shapes", type=int, default=None, help="synthetic shapes for PointNet pre-training")
+    parser.add_argument("--rn-eval-scenes", type=int, default=None, help="unseen scenes per RN evaluation split")
     parser.add_argument("--output-dir", default=None)
     args = parser.parse_args(argv)
     overrides = {
@@ -183,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
         "eval_scenes": args.scenes, "episode_frames": args.frames, "demos_per_task": args.demos_per_task,
         "n_shards": args.shards, "workers": args.workers, "dask_address": args.dask_address,
         "render": False if args.no_render else None, "output_dir": args.output_dir,
+        "train_rn": False if args.skip_rn else None, "rn_epochs": args.rn_epochs, "rn_eval_scenes": args.rn_eval_scenes,
+        "pn_epochs": args.pn_epochs, "pn_shapes": args.pn_shapes,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     try:  # validate before any work starts (and before Prefect spins up)

@@ -42,6 +42,22 @@ class PipelineConfig:
     """Dask worker processes of the local cluster."""
     dask_address: str | None = None
     """Address of a running Dask scheduler to use instead of a local cluster."""
+    train_rn: bool = True
+    """Run the Representation Network stages (PointNet, RN training, RN evaluation in simulation)."""
+    pn_epochs: int = 8
+    """PointNet pre-training epochs (on synthetic tool/object point clouds)."""
+    pn_shapes: int = 1200
+    """Synthetic shapes in the PointNet pre-training set."""
+    n_points: int = 512
+    """Surface points per tool / object cloud."""
+    rn_epochs: int = 30
+    """RN training epochs (paper: 200)."""
+    rn_val_fraction: float = 0.2
+    """Share of the scenes (by seed) held out from RN training."""
+    rn_eval_scenes: int = 4
+    """Fresh scenes on which the RN's plan (and a prior-sampled plan) is executed, per split."""
+    wide_randomization: float = 2.0
+    """Randomisation half-width scale of the harder evaluation split (1 = the training ranges)."""
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -53,10 +69,19 @@ class PipelineConfig:
                 raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
             if task not in SIMULATED_TASKS:
                 raise ConfigError(f"task {task!r} has no simulation yet; simulated: {', '.join(SIMULATED_TASKS)}")
-        for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers"):
+        for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers", "pn_epochs",
+                     "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.rn_val_fraction, float) or not 0.0 < self.rn_val_fraction < 1.0:
+            raise ConfigError(f"rn_val_fraction must be a number in (0, 1), got {self.rn_val_fraction!r}")
+        if not isinstance(self.wide_randomization, (int, float)) or not self.wide_randomization >= 1.0:
+            raise ConfigError(f"wide_randomization must be a number >= 1, got {self.wide_randomization!r}")
+        if self.train_rn and self.demos_per_task * len(self.tasks) < 2:
+            raise ConfigError(f"the RN needs at least 2 demos to split into training and validation scenes; "
+                              f"demos_per_task={self.demos_per_task} with {len(self.tasks)} task(s) "
+                              f"(pass more demos, or skip the RN stages)")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         out = Path(self.output_dir)
@@ -67,8 +92,9 @@ class PipelineConfig:
 
 
 PROFILES: dict[str, dict] = {
-    "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2},
-    "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16},
+    "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4},
+    "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16, "rn_epochs": 200, "rn_eval_scenes": 50,
+              "pn_epochs": 30, "pn_shapes": 4000},
 }
 
 

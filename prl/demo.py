@@ -5,9 +5,12 @@ read. It is saved as one ``.npz`` (arrays) with a JSON header (scalars, dicts), 
 temporary name and renamed, so a killed writer never leaves a half-written demo.
 
 x_manip (the paper's "manipulation demonstration data from the initial phase", Eq 2) is
-defined here as the state at ``X_MANIP_SAMPLES`` = 8 evenly spaced records of the first two
-stages (pre-grasp and approach: before any grasp, so the features do not give the plan away
-through contacts that the plan caused later), each sample being
+defined here as ``X_MANIP_SAMPLES`` = 8 evenly spaced states of the observation phase that
+precedes every plan (``envs.executor.PlanExecutor.observe``: the hand holds its home pose for
+``ExecutorConfig.observe_frames`` physics frames while the tool and object settle). It is taken
+before the plan acts on purpose: the pre-grasp already depends on the plan's a0-a2, so features
+from it would give the answer away to the Representation Network, and they would not exist for
+a new scene whose plan the network is asked to choose. Each sample is
 
     qpos (30) | qvel (30) | sensor force (17) | palm pose (7) | tool pose (7) | object pose (7)
 
@@ -27,7 +30,7 @@ import numpy as np
 from prl.constants import N_JOINTS, N_SENSORS
 
 X_MANIP_SAMPLES = 8
-"""Samples of the initial phase in x_manip."""
+"""Samples of the observation phase in x_manip."""
 X_MANIP_LAYOUT: tuple[tuple[str, int], ...] = (
     ("qpos", N_JOINTS), ("qvel", N_JOINTS), ("force", N_SENSORS),
     ("palm_pose", 7), ("tool_pose", 7), ("object_pose", 7),
@@ -35,8 +38,6 @@ X_MANIP_LAYOUT: tuple[tuple[str, int], ...] = (
 """(field, width) of one x_manip sample, in order."""
 X_MANIP_DIM = X_MANIP_SAMPLES * sum(w for _, w in X_MANIP_LAYOUT)
 """Length of x_manip (784)."""
-INITIAL_STAGES = (0, 1)
-"""Stage indices (``envs.executor.STAGES``) that make up the initial phase: pre-grasp, approach."""
 
 ARRAY_FIELDS: tuple[str, ...] = (
     "plan", "frame", "stage", "qpos", "qvel", "target", "force", "contact_pos", "contact_normal",
@@ -71,16 +72,15 @@ class Demo:
         raise AttributeError(name)
 
 
-def x_manip(stage: np.ndarray, fields: dict[str, np.ndarray]) -> np.ndarray:
-    """The (784,) initial-phase feature vector from recorded arrays (see module docstring)."""
-    idx = np.nonzero(np.isin(stage, INITIAL_STAGES))[0]
-    if idx.size == 0:
-        raise ValueError("the recording has no frame of the initial phase (pre-grasp/approach)")
-    pick = idx[np.round(np.linspace(0, idx.size - 1, X_MANIP_SAMPLES)).astype(int)]
-    parts = [np.asarray(fields[name], dtype=np.float64)[pick].reshape(X_MANIP_SAMPLES, -1) for name, _ in X_MANIP_LAYOUT]
-    out = np.concatenate(parts, axis=1).reshape(-1)
-    assert out.size == X_MANIP_DIM, out.size
-    return out.astype(np.float32)
+def x_manip_from_samples(samples: dict[str, np.ndarray]) -> np.ndarray:
+    """The (784,) x_manip from ``X_MANIP_SAMPLES`` states per ``X_MANIP_LAYOUT`` field (see module docstring)."""
+    parts = []
+    for name, width in X_MANIP_LAYOUT:
+        value = np.asarray(samples[name], dtype=np.float64).reshape(len(samples[name]), -1)
+        if value.shape != (X_MANIP_SAMPLES, width):
+            raise ValueError(f"x_manip field {name!r} has shape {value.shape}, expected ({X_MANIP_SAMPLES}, {width})")
+        parts.append(value)
+    return np.concatenate(parts, axis=1).reshape(-1).astype(np.float32)
 
 
 def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo:
@@ -96,7 +96,7 @@ def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo
         "tool_gv_local": np.concatenate([np.asarray(x, dtype=np.float64) for x in env.tool_gv_local]),
         "tool_fv_local": np.concatenate([np.asarray(x, dtype=np.float64) for x in env.tool_fv_local]),
     }
-    arrays["x_manip"] = x_manip(arrays["stage"], arrays)
+    arrays["x_manip"] = np.asarray(result.x_manip, dtype=np.float32)
     return Demo(task=task, seed=int(seed), text=text, success=bool(result.success),
                 outcome=dict(result.outcome), scene_params={k: float(v) for k, v in env.scene_params.items()},
                 arrays=arrays)

@@ -23,7 +23,7 @@ observation.object_pose         (7,)         f32    idem
 stage                           (1,)         i64    executor stage index (``envs.executor.STAGES``)
 plan                            (6,)         i64    commanded plan, constant over the episode
 label                           (6,)         i64    recovered physical-law label, or -1s
-x_manip                         (784,)       f32    initial-phase features, constant over the episode
+x_manip                         (784,)       f32    observation-phase features (before the plan acts), constant
 ==============================  ===========  =====  ==============================================
 
 lerobot adds ``timestamp``, ``frame_index``, ``episode_index``, ``index`` and ``task_index``.
@@ -56,6 +56,9 @@ CODEBASE_VERSION = "v3.0"
 """LeRobot dataset format written and accepted."""
 DEFAULT_REPO_ID = "prl/hammer"
 """Default dataset identifier (only a name: nothing is pushed to the Hub)."""
+SCENES_FILE = "meta/prl_scenes.jsonl"
+"""Sidecar written next to lerobot's metadata: one JSON line per episode with its scene (see
+:func:`read_scenes`); lerobot itself ignores it."""
 DEFAULT_FPS = 100
 """Recording rate of the demos (``ExecutorConfig.record_every`` = 5 at 500 Hz physics)."""
 ROBOT_TYPE = "prl_hand"
@@ -310,6 +313,7 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
     ds = LeRobotDataset.create(repo_id, fps=fps, features=lerobot_features(), root=staging,
                                robot_type=ROBOT_TYPE, use_videos=False)
     checks: list[EpisodeCheck] = []
+    scenes: list[dict[str, Any]] = []
     try:
         for path in paths:
             demo = _load(path)
@@ -324,6 +328,8 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
             for i in range(t):
                 ds.add_frame({**{name: a[i] for name, a in frames.items()}, "task": text})
             ds.save_episode()
+            scenes.append({"episode_index": len(scenes), "task": demo.task, "seed": demo.seed,
+                           "scene_params": demo.scene_params, "outcome": demo.outcome, "source": str(path)})
             k = t // 2
             checks.append(EpisodeCheck(
                 length=t, task=text, plan=tuple(int(v) for v in frames["plan"][0]),
@@ -331,7 +337,24 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
                 sample_state=frames["observation.state"][k].copy(), source=str(path)))
     finally:
         ds.finalize()
+    with open(staging / SCENES_FILE, "w") as fh:
+        fh.writelines(json.dumps(row) + "\n" for row in scenes)
     return checks
+
+
+def read_scenes(root: Path | str) -> list[dict[str, Any]]:
+    """Per-episode scene records of an exported dataset (``SCENES_FILE``), in episode order.
+
+    Each: ``episode_index``, ``task``, ``seed`` (scene seed), ``scene_params`` (the randomised
+    values, from which ``prl.shapes`` rebuilds the tool and object meshes), ``outcome``, ``source``.
+    """
+    path = Path(root) / SCENES_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"dataset at {str(root)!r} has no scene records ({SCENES_FILE} is missing)")
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if [r.get("episode_index") for r in rows] != list(range(len(rows))):
+        raise ValueError(f"{str(path)!r}: episode_index values are not 0..{len(rows) - 1}")
+    return rows
 
 
 # ----------------------------------------------------------------------------- validation
@@ -344,7 +367,7 @@ def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
     Always checked: format v3.0, every ``FEATURES`` entry with its dtype and shape, episode
     indices 0..N-1, per-episode lengths in the metadata equal to the frames in the data,
     contiguous frame ranges and global indices, total frames, one task sentence per episode,
-    plan/label/x_manip constant within each episode. With ``expected`` (one per episode, in
+    plan/label/x_manip constant within each episode, one scene record per episode (``SCENES_FILE``). With ``expected`` (one per episode, in
     order): episode count, lengths, task sentences, plan and label, and the reloaded
     ``observation.state`` (and plan) of one frame per episode read through ``dataset[i]``.
 
@@ -429,6 +452,12 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
             fail(f"{name!r} is not constant within every episode")
         per_ep[name] = values[starts]
     n_labelled = int(np.sum(np.any(per_ep["label"] != NO_LABEL, axis=1)))
+    try:
+        scenes = read_scenes(root)
+    except (FileNotFoundError, ValueError) as exc:
+        fail(str(exc))
+    if len(scenes) != n_eps:
+        fail(f"{SCENES_FILE} has {len(scenes)} scene records for {n_eps} episodes")
 
     if expected is not None:
         expected = list(expected)
@@ -440,6 +469,8 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
                 fail(f"{where} has {lengths[i]} frames, the demo {exp.length}")
             if tasks[i] != exp.task:
                 fail(f"{where} has task {tasks[i]!r}, the demo {exp.task!r}")
+            if scenes[i]["source"] != exp.source:
+                fail(f"{where}: scene record is of {scenes[i]['source']!r}")
             if tuple(per_ep["plan"][i].tolist()) != exp.plan:
                 fail(f"{where} has plan {per_ep['plan'][i].tolist()}, the demo {list(exp.plan)}")
             if tuple(per_ep["label"][i].tolist()) != exp.label:

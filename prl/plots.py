@@ -39,3 +39,64 @@ def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str,
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim_names: Sequence[str],
+                          choice_names: Sequence[Sequence[str]], out: Path, tau: float = 2.0) -> Path:
+    """The paper's Fig 7 redrawn: one row per task, one bar chart per RS dimension.
+
+    ``probs_by_task[task][i]`` is the (N, m_i) RN probabilities of dimension i over the task's samples;
+    each bar is the mean predicted probability of a choice. Key dimensions (``prl.rn.key_dimensions``:
+    the top mean probability exceeds ``tau / m_i``, drawn as a dashed line) are drawn in colour with
+    their top choice highlighted; the others in grey."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from prl.rn import key_dimensions
+
+    if not probs_by_task:
+        raise ValueError("probs_by_task is empty; give at least one task")
+    n = len(dim_names)
+    if len(choice_names) != n:
+        raise ValueError(f"{len(dim_names)} dimension names but {len(choice_names)} choice-name lists")
+    for task, probs in probs_by_task.items():
+        if len(probs) != n:
+            raise ValueError(f"task {task!r} has probabilities for {len(probs)} dimensions, expected {n}")
+        for i, p in enumerate(probs):
+            width = np.shape(p)[-1] if np.ndim(p) == 2 else None
+            if width != len(choice_names[i]):
+                raise ValueError(f"task {task!r}, dimension {dim_names[i]!r}: probabilities of shape {np.shape(p)}, "
+                                 f"expected (samples, {len(choice_names[i])})")
+    tasks = list(probs_by_task)
+    fig, axes = plt.subplots(len(tasks), n, figsize=(2.3 * n, 1.9 * len(tasks) + 0.6), squeeze=False)
+    for r, task in enumerate(tasks):
+        summaries = key_dimensions(probs_by_task[task], tau=tau)
+        for c, s in enumerate(summaries):
+            ax = axes[r][c]
+            m = len(s.mean_probs)
+            if s.key:
+                colors = ["tab:red" if k == s.top_choice else "tab:blue" for k in range(m)]
+            else:
+                colors = ["tab:gray"] * m
+            ax.bar(range(m), s.mean_probs, color=colors)
+            ax.axhline(s.threshold, color="k", ls="--", lw=0.7)
+            ax.set_ylim(0, 1.0)
+            ax.set_xticks(range(m))
+            ax.set_xticklabels([str(name) for name in choice_names[c]], rotation=60, ha="right", fontsize=6)
+            ax.tick_params(axis="y", labelsize=7)
+            title = f"a{c} {dim_names[c]}" + (" [key]" if s.key else "")
+            ax.set_title(title, fontsize=7, fontweight="bold" if s.key else "normal")
+            if s.key:
+                for spine in ax.spines.values():
+                    spine.set_edgecolor("tab:red")
+                    spine.set_linewidth(1.5)
+            if c == 0:
+                ax.set_ylabel(f"{task}\nmean prob.", fontsize=8)
+    fig.suptitle(f"RN predicted probabilities per choice (key: top mean prob. > {tau:g}/m, dashed)", fontsize=9)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

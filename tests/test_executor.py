@@ -122,3 +122,24 @@ def test_no_constraint_between_hand_and_tool(executor, expert_result):
             kind = type(component).__name__
             assert "Joint" not in kind and "Drive" not in kind and "Gear" not in kind, (entity.name, kind)
     assert SENSOR_NAMES[0] in hand_links
+
+
+@pytest.mark.sim
+def test_x_manip_is_observed_before_the_plan_acts(executor, expert_result):
+    """x_manip comes from the observation phase: it cannot depend on the plan, and observing first,
+    then running without a reset, is the same episode as run(plan, seed)."""
+    from prl.demo import X_MANIP_DIM, X_MANIP_LAYOUT
+
+    other = executor.run([3, 5, 0, 1, 4, 2], seed=3)
+    assert expert_result.x_manip.shape == (X_MANIP_DIM,)
+    np.testing.assert_array_equal(other.x_manip, expert_result.x_manip)
+    observed = executor.observe(seed=3)
+    np.testing.assert_array_equal(observed, expert_result.x_manip)
+    again = executor.run(EXPERT)  # continues from the observed state
+    assert again.outcome["nail_descent_cm"] == expert_result.outcome["nail_descent_cm"]
+    # the hand holds its home pose: joint velocities stay ~0 in every sample
+    width = sum(w for _, w in X_MANIP_LAYOUT)
+    samples = observed.reshape(8, width)
+    assert np.abs(samples[:, 30:60]).max() < 1e-2
+    # a different scene gives different tool poses in the features
+    assert not np.array_equal(executor.observe(seed=4), observed)

@@ -241,3 +241,23 @@ def test_builds_with_hand_and_hand_touches_nothing_at_reset() -> None:
         assert not bool(env.evaluate()["success"][0])
     finally:
         gym_env.close()
+
+
+@pytest.mark.sim
+def test_wider_randomization_scales_every_range_about_its_centre():
+    """randomization=2 doubles each value's offset from its range centre (same seed, same draws)."""
+    from envs.tasks.hammer import HAMMER_FRICTION_RANGE, HAMMER_REST_XY, HANDLE_RADIUS
+
+    params = {}
+    for scale in (1.0, 2.0):
+        env = make_env("hammer", randomization=scale)
+        env.reset(seed=11)
+        params[scale] = dict(env.unwrapped.scene_params)
+        env.close()
+    narrow, wide = params[1.0], params[2.0]
+    assert wide["handle_radius"] / HANDLE_RADIUS - 1 == pytest.approx(2 * (narrow["handle_radius"] / HANDLE_RADIUS - 1))
+    centre = sum(HAMMER_FRICTION_RANGE) / 2
+    assert wide["hammer_friction"] - centre == pytest.approx(2 * (narrow["hammer_friction"] - centre))
+    assert wide["rack_x"] - HAMMER_REST_XY[0] == pytest.approx(2 * (narrow["rack_x"] - HAMMER_REST_XY[0]))
+    with pytest.raises(ValueError, match="randomization must be a positive number, got 0"):
+        make_env("hammer", randomization=0)

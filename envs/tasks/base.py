@@ -96,7 +96,10 @@ class PRLTaskEnv(BaseEnv):
     scene_params: dict[str, float]
     """The randomised values of the current episode as plain floats (SI units)."""
 
-    def __init__(self, *args: Any, robot_uids: str = "prl_hand", **kwargs: Any) -> None:
+    def __init__(self, *args: Any, robot_uids: str = "prl_hand", randomization: float = 1.0, **kwargs: Any) -> None:
+        if isinstance(randomization, bool) or not isinstance(randomization, (int, float)) or not randomization > 0:
+            raise ValueError(f"randomization must be a positive number, got {randomization!r}")
+        self.randomization = float(randomization)
         kwargs.setdefault("reconfiguration_freq", 1)
         if kwargs["reconfiguration_freq"] != 1:
             raise ValueError(
@@ -121,6 +124,16 @@ class PRLTaskEnv(BaseEnv):
         )
 
     # ------------------------------------------------------------------ scene helpers
+    def _uniform(self, rng: np.random.RandomState, low: float, high: float) -> float:
+        """A draw from [low, high] with the half-width scaled by ``randomization`` about the centre.
+
+        ``randomization`` = 1 gives the training ranges; e.g. 2 doubles every range's half-width (a
+        harder split with values the training scenes never had). The same seed maps to the same
+        relative position inside the range, whatever the scale.
+        """
+        centre, half = (low + high) / 2, (high - low) / 2 * self.randomization
+        return float(rng.uniform(centre - half, centre + half))
+
     def _scene_rng(self) -> np.random.RandomState:
         """The episode's seeded generator (ManiSkill's per-episode RNG of environment 0)."""
         return self._batched_episode_rng[0]

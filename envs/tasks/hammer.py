@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -132,26 +133,26 @@ class PRLHammerEnv(PRLTaskEnv):
         self._build_rack(params)
         self._build_board_and_nail(params)
 
-    @staticmethod
-    def _sample_params(rng: np.random.RandomState) -> dict[str, float]:
-        """Draw one episode's randomised values (all SI units, plain floats)."""
-        handle_scale = rng.uniform(*SIZE_SCALE_RANGE)
-        head_scale = rng.uniform(*SIZE_SCALE_RANGE)
+    def _sample_params(self, rng: np.random.RandomState) -> dict[str, float]:
+        """Draw one episode's randomised values (all SI units, plain floats; ranges scaled by ``randomization``)."""
+        u = partial(self._uniform, rng)
+        handle_scale = u(*SIZE_SCALE_RANGE)
+        head_scale = u(*SIZE_SCALE_RANGE)
         values = {
             "handle_radius": HANDLE_RADIUS * handle_scale,
             "handle_half_length": HANDLE_HALF_LENGTH * handle_scale,
             "head_radius": HEAD_RADIUS * head_scale,
             "head_half_length": HEAD_HALF_LENGTH * head_scale,
-            "hammer_mass": rng.uniform(*HAMMER_MASS_RANGE),
-            "hammer_friction": rng.uniform(*HAMMER_FRICTION_RANGE),
-            "rack_x": HAMMER_REST_XY[0] + rng.uniform(-HAMMER_REST_XY_RANGE, HAMMER_REST_XY_RANGE),
-            "rack_y": HAMMER_REST_XY[1] + rng.uniform(-HAMMER_REST_XY_RANGE, HAMMER_REST_XY_RANGE),
-            "rack_yaw": rng.uniform(-HAMMER_REST_YAW_RANGE, HAMMER_REST_YAW_RANGE),
-            "hammer_shift": rng.uniform(-HAMMER_ON_RACK_SHIFT, HAMMER_ON_RACK_SHIFT),
-            "board_x": BOARD_XY[0] + rng.uniform(-BOARD_XY_RANGE, BOARD_XY_RANGE),
-            "board_y": BOARD_XY[1] + rng.uniform(-BOARD_XY_RANGE, BOARD_XY_RANGE),
-            "board_yaw": rng.uniform(-BOARD_YAW_RANGE, BOARD_YAW_RANGE),
-            "nail_hold_force": rng.uniform(*NAIL_HOLD_FORCE_RANGE),
+            "hammer_mass": u(*HAMMER_MASS_RANGE),
+            "hammer_friction": u(*HAMMER_FRICTION_RANGE),
+            "rack_x": HAMMER_REST_XY[0] + u(-HAMMER_REST_XY_RANGE, HAMMER_REST_XY_RANGE),
+            "rack_y": HAMMER_REST_XY[1] + u(-HAMMER_REST_XY_RANGE, HAMMER_REST_XY_RANGE),
+            "rack_yaw": u(-HAMMER_REST_YAW_RANGE, HAMMER_REST_YAW_RANGE),
+            "hammer_shift": u(-HAMMER_ON_RACK_SHIFT, HAMMER_ON_RACK_SHIFT),
+            "board_x": BOARD_XY[0] + u(-BOARD_XY_RANGE, BOARD_XY_RANGE),
+            "board_y": BOARD_XY[1] + u(-BOARD_XY_RANGE, BOARD_XY_RANGE),
+            "board_yaw": u(-BOARD_YAW_RANGE, BOARD_YAW_RANGE),
+            "nail_hold_force": u(*NAIL_HOLD_FORCE_RANGE),
         }
         return {key: float(value) for key, value in values.items()}
 

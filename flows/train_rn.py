@@ -1,0 +1,90 @@
+"""Prefect tasks of the Representation Network: PointNet pre-training, RN training, RN evaluation in simulation.
+
+Thin over ``prl.pointnet``, ``prl.features``, ``prl.rn`` and ``envs.trials``; MLflow logging happens
+in ``flows.full_pipeline``, which calls these inside its child runs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+
+def _key(*parts: Any) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+@task(name="train-pointnet", cache_policy=NO_CACHE)
+def train_pointnet_stage(epochs: int, n_shapes: int, n_points: int, seed: int, code_version: str,
+                         models_dir: Path) -> tuple[Path, dict[str, list[float]], bool]:
+    """Train the PointNet encoder on synthetic shapes, or reuse the checkpoint of an identical earlier run.
+
+    The checkpoint's name is a key over the PointNet config and ``code_version``, so an unchanged
+    re-run loads it instead of training (returns ``reused=True``). Returns (checkpoint, history, reused).
+    """
+    from prl.pointnet import PointNetConfig, save_pointnet, train_pointnet
+
+    cfg = PointNetConfig(epochs=epochs, n_shapes=n_shapes, n_points=n_points, seed=seed)
+    path = Path(models_dir) / f"pointnet-{_key(asdict(cfg), code_version)}.pt"
+    history_path = path.with_suffix(".json")
+    if path.is_file() and history_path.is_file():
+        return path, json.loads(history_path.read_text()), True
+    model, history = train_pointnet(cfg)
+    save_pointnet(model, cfg, path)
+    history_path.write_text(json.dumps(history))
+    return path, history, False
+
+
+@task(name="rn-features", cache_policy=NO_CACHE)
+def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points: int) -> dict[str, Any]:
+    """x, targets and scene identity of every episode of the exported dataset."""
+    from prl.features import episode_features, read_episodes
+    from prl.pointnet import load_pointnet
+
+    episodes = read_episodes(dataset_root, repo_id)
+    x = episode_features(episodes, load_pointnet(pointnet_path), n_points)
+    return {"x": x, "plan": episodes.plan, "label": episodes.label, "seeds": episodes.seeds,
+            "tasks": list(episodes.tasks), "texts": list(episodes.texts)}
+
+
+def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds: list[int], n_points: int):
+    """An ``envs.trials.Policy`` choosing the RN's argmax plan from the live scene's features.
+
+    Trial ``i`` runs on the scene of ``seeds[i]``; its task sentence cycles through the task's
+    phrasings in the PLB catalogue.
+    """
+    from prl.features import scene_features
+    from prl.rn import predict_plan
+
+    def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
+        x = scene_features(task_name, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)],
+                           pointnet, n_points)
+        return predict_plan(model, x)[0].tolist()
+
+    return choose
+
+
+@task(name="rn-eval-sim", task_run_name="rn-eval-{task_name}-x{randomization}", cache_policy=NO_CACHE)
+def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int,
+                    n_frames: int, randomization: float, prior_seed: int) -> dict[str, list]:
+    """Execute the RN's plan and a prior-sampled plan on each of ``seeds``' scenes; outcomes of both."""
+    from envs.trials import plan_set, run_policy, run_trials
+    from prl.plb import load_plb
+    from prl.pointnet import load_pointnet
+    from prl.rn import load_rn
+
+    model = load_rn(rn_path)
+    texts = list(load_plb().texts(task_name))
+    policy = rn_policy(model, load_pointnet(pointnet_path), task_name, texts, seeds, n_points)
+    rn = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
+                    desc=f"{task_name} RN plans (x{randomization:g} ranges)")
+    prior = run_trials(task_name, plan_set(task_name, "prior", len(seeds), prior_seed), seeds, n_frames=n_frames,
+                       randomization=randomization)
+    return {"rn": rn, "prior": prior}
