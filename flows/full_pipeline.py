@@ -137,8 +137,9 @@ def log_registered_rn(model: Any, x_check: np.ndarray) -> float:
     model.eval()
     with torch.no_grad():
         logits = model(torch.as_tensor(x_check, dtype=torch.float32)).numpy()
+    # pickle, not the traced 'pt2' default: a traced graph fixes the example's batch size
     info = mlflow.pytorch.log_model(model, name="rn", signature=infer_signature(x_check, logits),
-                                    registered_model_name="prl-rn")
+                                    registered_model_name="prl-rn", serialization_format="pickle")
     reloaded = mlflow.pytorch.load_model(info.model_uri)
     reloaded.eval()
     with torch.no_grad():

@@ -58,7 +58,9 @@ def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None
             bar.n = min(ok, target)
             bar.set_postfix(attempts=len(rows), yield_=f"{ok / len(rows):.2f}" if rows else "-")
             bar.refresh()
-            if all(f.state.is_final() for f in futures):
+            # the Dask futures, not ``f.state``: that is an API call per future per poll, and on two
+            # cores the server's share of CPU came out of the workers'
+            if all(f.wrapped_future.done() for f in futures):
                 break
             time.sleep(period_s)
 

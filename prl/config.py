@@ -78,8 +78,8 @@ class PipelineConfig:
             raise ConfigError(f"rn_val_fraction must be a number in (0, 1), got {self.rn_val_fraction!r}")
         if not isinstance(self.wide_randomization, (int, float)) or not self.wide_randomization >= 1.0:
             raise ConfigError(f"wide_randomization must be a number >= 1, got {self.wide_randomization!r}")
-        if self.train_rn and self.demos_per_task * len(self.tasks) < 2:
-            raise ConfigError(f"the RN needs at least 2 demos to split into training and validation scenes; "
+        if self.train_rn and self.demos_per_task * len(self.tasks) < 3:
+            raise ConfigError(f"the RN needs at least 3 demos (2 to train on, BatchNorm needs a pair; 1 held out); "
                               f"demos_per_task={self.demos_per_task} with {len(self.tasks)} task(s) "
                               f"(pass more demos, or skip the RN stages)")
         if not isinstance(self.seed, int) or self.seed < 0:

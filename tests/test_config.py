@@ -22,10 +22,19 @@ def test_quick_and_paper_profiles() -> None:
     ({"eval_scenes": 0}, "eval_scenes must be a positive integer, got 0"),
     ({"episode_frames": -5}, "episode_frames must be a positive integer, got -5"),
     ({"seed": -1}, "seed must be a non-negative integer, got -1"),
+    ({"rn_epochs": 0}, "rn_epochs must be a positive integer, got 0"),
+    ({"rn_val_fraction": 1.0}, r"rn_val_fraction must be a number in \(0, 1\), got 1.0"),
+    ({"wide_randomization": 0.5}, "wide_randomization must be a number >= 1, got 0.5"),
+    ({"demos_per_task": 2}, "the RN needs at least 3 demos"),
 ])
 def test_bad_values_are_named(overrides: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         make_config(**overrides)
+
+
+def test_rn_stages_can_be_skipped_for_tiny_runs() -> None:
+    assert make_config(demos_per_task=1, train_rn=False).demos_per_task == 1
+    assert (make_config().rn_epochs, make_config("paper").rn_epochs) == (30, 200)
 
 
 def test_unknown_profile() -> None:

@@ -30,7 +30,8 @@ def test_bad_config_fails_before_work(tmp_path: Path) -> None:
 @pytest.mark.sim
 def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     res = _pipeline(tmp_path, "--scenes", "2", "--no-render", "--output-dir", str(tmp_path / "out"),
-                    "--demos-per-task", "1", "--shards", "1", "--workers", "1")
+                    "--demos-per-task", "3", "--shards", "1", "--workers", "1", "--pn-epochs", "1",
+                    "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     import mlflow
 
@@ -39,7 +40,8 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     parents = runs[runs["tags.mlflow.parentRunId"].isna()]
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parents) == 1
-    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "synthesis", "labels", "export"}
+    assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "synthesis", "labels", "export",
+                                                    "pointnet", "rn-train", "rn-eval"}
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     trials = children[children["tags.mlflow.runName"] == "trials-hammer"].iloc[0]
     # measured in simulation: the expert plan drives the nail on these two scenes
@@ -49,14 +51,30 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert parents.iloc[0]["params.tasks"] == "('hammer',)"
     assert (tmp_path / "out" / "run-seed0" / "hammer_trial_rates.png").stat().st_size > 10_000
     synthesis = children[children["tags.mlflow.runName"] == "synthesis"].iloc[0]
-    assert synthesis["metrics.hammer/successes"] == 1.0
-    assert synthesis["metrics.hammer/attempts"] >= 1.0
+    assert synthesis["metrics.hammer/successes"] == 3.0
+    assert synthesis["metrics.hammer/attempts"] >= 3.0
     demos = list((tmp_path / "out" / "synthesis").rglob("ep*.npz"))
-    assert len(demos) == 1
+    assert len(demos) == 3
     export = children[children["tags.mlflow.runName"] == "export"].iloc[0]
-    assert export["metrics.episodes"] == 1.0
+    assert export["metrics.episodes"] == 3.0
     from prl.export import validate_lerobot
 
     report = validate_lerobot(tmp_path / "out" / "datasets" / "hammer-seed0", "prl/hammer")
-    assert report.n_episodes == 1 and report.n_frames == export["metrics.frames"] > 0
+    assert report.n_episodes == 3 and report.n_frames == export["metrics.frames"] > 0
     assert export["params.dataset_digest"] and len(export["params.dataset_digest"]) == 16
+
+    # RN stages: two scenes trained on, one held out; the registered model reloads to the same logits
+    rn = children[children["tags.mlflow.runName"] == "rn-train"].iloc[0]
+    assert (rn["metrics.n_train"], rn["metrics.n_val"]) == (2.0, 1.0)
+    assert rn["metrics.registered_reload_max_abs_diff"] == 0.0
+    assert 0.0 <= rn["metrics.val_accuracy/grasp_pattern"] <= 1.0
+    history = mlflow.tracking.MlflowClient().get_metric_history(rn["run_id"], "rn/loss_ce")
+    assert [m.step for m in history] == [0, 1, 2]
+    versions = mlflow.tracking.MlflowClient().search_model_versions("name='prl-rn'")
+    assert len(versions) == 1
+    assert (tmp_path / "out" / "run-seed0" / "rn_probabilities.png").stat().st_size > 10_000
+    ev = children[children["tags.mlflow.runName"] == "rn-eval"].iloc[0]
+    for split in ("train_ranges", "wide_ranges"):
+        for kind in ("rn", "prior"):
+            assert ev[f"metrics.hammer/{split}/{kind}_success_rate"] in (0.0, 1.0)
+    assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1
