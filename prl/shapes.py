@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import trimesh
 
-# --- copied from envs/tasks/hammer.py (importing it would import SAPIEN); tests/test_shapes.py checks them
+# --- nominal hammer and nail geometry: the one definition; envs/tasks/hammer.py builds its scene from it
 HANDLE_RADIUS = 0.016
 """Nominal handle capsule radius (m)."""
 HANDLE_HALF_LENGTH = 0.10

@@ -13,18 +13,20 @@ from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
+from prl.shapes import (
+    HANDLE_HALF_LENGTH,
+    HANDLE_RADIUS,
+    HEAD_HALF_LENGTH,
+    HEAD_RADIUS,
+    NAIL_HEAD_RADIUS,
+    NAIL_HEAD_THICKNESS,
+    NAIL_PROTRUSION,
+    NAIL_SHANK_RADIUS,
+    SIZE_SCALE_RANGE,
+)
 
 # --- nominal geometry (metres); the randomised ones are scaled per episode --------------------------
-HANDLE_RADIUS = 0.016
-"""Nominal handle capsule radius (Adroit-like, thin enough for a Shadow-size hand to wrap)."""
-HANDLE_HALF_LENGTH = 0.10
-"""Nominal half-length of the handle capsule's cylindrical part (along the tool's local X)."""
-HEAD_RADIUS = 0.02
-"""Nominal head cylinder radius (Adroit: 0.02)."""
-HEAD_HALF_LENGTH = 0.04
-"""Nominal head cylinder half-length (Adroit: 0.04), along the tool's local Y."""
-SIZE_SCALE_RANGE = (0.85, 1.15)
-"""Handle and head sizes are each scaled by an independent factor from this range (+-15 %)."""
+# handle, head and nail sizes: defined once in prl.shapes (which rebuilds the meshes for PointNet)
 HAMMER_MASS_RANGE = (0.2, 0.45)
 """Total hammer mass, kg (Adroit: 0.253)."""
 HEAD_MASS_FRACTION = 0.5
@@ -51,14 +53,6 @@ BOARD_XY_RANGE = 0.03
 """Board placement noise, +- metres in x and y."""
 BOARD_YAW_RANGE = np.deg2rad(10.0)
 """Board yaw noise, +- radians (rotates the object frame's X/Y)."""
-NAIL_HEAD_RADIUS = 0.025
-"""Radius of the nail head disc (the strike target)."""
-NAIL_HEAD_THICKNESS = 0.006
-"""Thickness of the nail head disc."""
-NAIL_SHANK_RADIUS = 0.004
-"""Radius of the nail shank (visual only: the shank passes through a hole in the board)."""
-NAIL_PROTRUSION = 0.045
-"""Height of the nail head's top surface above the board at reset."""
 NAIL_MAX_DESCENT = NAIL_PROTRUSION - NAIL_HEAD_THICKNESS - 0.002
 """Upper limit of the nail joint (m): the head stops 2 mm above the board."""
 NAIL_MASS = 0.02
