@@ -388,7 +388,7 @@ def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
         return _validate_loaded(ds, root, repo_id, expected, t0)
     finally:
         if drop_cache:
-            _drop_datasets_cache(ds)
+            drop_datasets_cache(ds)
 
 
 def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[EpisodeCheck] | None,
@@ -525,7 +525,7 @@ def _quiet_fast_writes(fast: bool = True) -> Iterator[None]:
             datasets.enable_progress_bars()
 
 
-def _drop_datasets_cache(ds: Any) -> None:
+def drop_datasets_cache(ds: Any) -> None:
     """Delete the ``datasets`` Arrow cache directories that loading ``ds`` created or used."""
     import datasets
 

@@ -65,16 +65,22 @@ def read_episodes(root: Path | str, repo_id: str) -> Episodes:
     """Per-episode RN inputs of the LeRobot dataset at ``root``; clear errors for a missing piece."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from prl.export import read_scenes
+    from prl.export import drop_datasets_cache, read_scenes
 
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
         raise FileNotFoundError(f"no LeRobot dataset at {str(root)!r} (meta/info.json is missing)")
     ds = LeRobotDataset(repo_id, root=root)
+    try:
+        return _episodes_of(ds, root, read_scenes(root))
+    finally:
+        drop_datasets_cache(ds)  # loading wrote an Arrow copy (~5x the dataset) into the datasets cache
+
+
+def _episodes_of(ds: Any, root: Path, scenes: list[dict[str, Any]]) -> Episodes:
     missing = [name for name in PER_EPISODE_COLUMNS if name not in ds.meta.features]
     if missing:
         raise ValueError(f"dataset at {str(root)!r} lacks the feature(s) {missing} that the RN reads")
-    scenes = read_scenes(root)
     eps = ds.meta.episodes
     starts = np.asarray(eps["dataset_from_index"], dtype=np.int64)
     if len(scenes) != len(starts):

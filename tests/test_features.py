@@ -32,3 +32,10 @@ def test_split_errors_name_the_problem():
         split_by_seed(np.array([1, 2, 3]), 1.5)
     train, val = split_by_seed(np.array([1, 2]), 0.01)  # tiny fraction still leaves one on each side
     assert len(train) == 1 and len(val) == 1
+
+
+def test_missing_dataset_is_named(tmp_path):
+    from prl.features import read_episodes
+
+    with pytest.raises(FileNotFoundError, match="no LeRobot dataset at .*nowhere"):
+        read_episodes(tmp_path / "nowhere", "prl/hammer")
