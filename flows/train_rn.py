@@ -54,8 +54,10 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
             "tasks": list(episodes.tasks), "texts": list(episodes.texts)}
 
 
-def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds: list[int], n_points: int):
-    """An ``envs.trials.Policy`` choosing the RN's argmax plan from the live scene's features.
+def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds: list[int], n_points: int,
+              library: np.ndarray | None = None):
+    """An ``envs.trials.Policy`` choosing the RN's plan from the live scene's features: the per-dimension
+    argmax, or with ``library`` the most probable library plan (``prl.rn.library_plan``).
 
     Trial ``i`` runs on the scene of ``seeds[i]``; its task sentence cycles through the task's
     phrasings in the PLB catalogue.
@@ -66,7 +68,7 @@ def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds
     def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
         x = scene_features(task_name, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)],
                            pointnet, n_points)
-        return predict_plan(model, x)[0].tolist()
+        return predict_plan(model, x, library)[0].tolist()
 
     return choose
 
@@ -74,7 +76,9 @@ def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds
 @task(name="rn-eval-sim", task_run_name="rn-eval-{task_name}-x{randomization}", cache_policy=NO_CACHE)
 def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int,
                     n_frames: int, randomization: float, prior_seed: int) -> dict[str, list]:
-    """Execute the RN's plan and a prior-sampled plan on each of ``seeds``' scenes; outcomes of both."""
+    """On each of ``seeds``' scenes execute the RN's per-dimension argmax plan ('rn'), its most probable plan
+    among the demonstrated ones ('rn_library', when the checkpoint holds a plan library) and a
+    prior-sampled plan ('prior'); the outcomes of each."""
     from envs.trials import plan_set, run_policy, run_trials
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
@@ -82,9 +86,13 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
 
     model = load_rn(rn_path)
     texts = list(load_plb().texts(task_name))
-    policy = rn_policy(model, load_pointnet(pointnet_path), task_name, texts, seeds, n_points)
-    rn = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
-                    desc=f"{task_name} RN plans (x{randomization:g} ranges)")
-    prior = run_trials(task_name, plan_set(task_name, "prior", len(seeds), prior_seed), seeds, n_frames=n_frames,
-                       randomization=randomization)
-    return {"rn": rn, "prior": prior}
+    pointnet = load_pointnet(pointnet_path)
+    out: dict[str, list] = {}
+    decodings = {"rn": None} | ({"rn_library": model.plan_library} if model.plan_library is not None else {})
+    for kind, library in decodings.items():
+        policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, library)
+        out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
+                               desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
+    out["prior"] = run_trials(task_name, plan_set(task_name, "prior", len(seeds), prior_seed), seeds,
+                              n_frames=n_frames, randomization=randomization)
+    return out

@@ -19,8 +19,10 @@ from prl.rn import (
     batch_indices,
     check_features,
     key_dimensions,
+    library_plan,
     load_rn,
     per_dim_accuracy,
+    plan_library,
     predict_plan,
     predict_proba,
     rn_loss,
@@ -305,6 +307,14 @@ def test_save_load_round_trip_and_layout_mismatch(tmp_path: Path) -> None:
     for a, b in zip(predict_proba(model, x), predict_proba(loaded, x), strict=True):
         assert np.array_equal(a, b)
     assert np.array_equal(predict_plan(model, x), predict_plan(loaded, x))
+    assert loaded.plan_library is None
+    model.plan_library = plan_library(y[:5])
+    again = load_rn(save_rn(model, cfg, layout, tmp_path / "lib.pt"))
+    assert np.array_equal(again.plan_library, plan_library(y[:5]))
+    assert np.array_equal(predict_plan(again, x, again.plan_library), predict_plan(model, x, model.plan_library))
+    model.plan_library = np.array([[0, 4]])  # dimension 1 has 4 choices
+    with pytest.raises(ValueError, match=r"plan_library must be \(K, 2\) choices within \(3, 4\)"):
+        save_rn(model, cfg, layout, tmp_path / "badlib.pt")
     other = FeatureLayout((("a", 5), ("b", 5)))
     with pytest.raises(ValueError, match=r"a 6 \| b 4 = 10.*a 5 \| b 5 = 10"):
         load_rn(path, expected_layout=other)
@@ -315,6 +325,44 @@ def test_save_load_round_trip_and_layout_mismatch(tmp_path: Path) -> None:
     (tmp_path / "junk.pt").write_text("not a checkpoint")
     with pytest.raises(ValueError, match="junk.pt"):
         load_rn(tmp_path / "junk.pt")
+
+
+# ------------------------------------------------------------------ decoding over a plan library
+
+
+def test_library_plan_hand_computed() -> None:
+    # sample 0: p0 = (.5, .3, .2), p1 = (.4, .6) -> per-dimension argmax (0, 1)
+    # sample 1: p0 = (.1, .1, .8), p1 = (.9, .1) -> per-dimension argmax (2, 0)
+    probs = [np.array([[0.5, 0.3, 0.2], [0.1, 0.1, 0.8]]), np.array([[0.4, 0.6], [0.9, 0.1]])]
+    library = np.array([[0, 0], [1, 1], [2, 1]])
+    # sample 0 scores: .5*.4 = .20, .3*.6 = .18, .2*.6 = .12 -> (0, 0)
+    # sample 1 scores: .1*.9 = .09, .1*.1 = .01, .8*.1 = .08 -> (0, 0)
+    assert library_plan(probs, library).tolist() == [[0, 0], [0, 0]]
+    # (1, 1) beats (2, 1) for sample 1 only when (0, 0) is gone: .01 < .08 -> (2, 1)
+    assert library_plan(probs, library[1:]).tolist() == [[1, 1], [2, 1]]
+    # the full grid as library gives back the per-dimension argmax
+    grid = np.array([[a, b] for a in range(3) for b in range(2)])
+    assert library_plan(probs, grid).tolist() == [[0, 1], [2, 0]]
+    # a zero probability does not make every score -inf
+    assert library_plan([np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0]])], library).tolist() == [[0, 0]]
+
+
+def test_plan_library_is_sorted_distinct_rows() -> None:
+    assert plan_library([[2, 1], [0, 3], [2, 1]]).tolist() == [[0, 3], [2, 1]]
+    with pytest.raises(ValueError, match=r"\(N >= 1, n\), got \(0,\)"):
+        plan_library([])
+
+
+@pytest.mark.parametrize(("library", "match"), [
+    (np.array([0, 1]), r"shape \(K >= 1, 2\), got \(2,\)"),
+    (np.zeros((0, 2), dtype=int), r"got \(0, 2\)"),
+    (np.array([[0.0, 1.0]]), "integer choices, got dtype float64"),
+    (np.array([[0, 1], [3, 0]]), "row 1 has choice 3 for dimension 0, which has 3 choices"),
+])
+def test_library_plan_rejects_bad_libraries(library: np.ndarray, match: str) -> None:
+    probs = [np.full((1, 3), 1 / 3), np.full((1, 2), 0.5)]
+    with pytest.raises(ValueError, match=match):
+        library_plan(probs, library)
 
 
 # ------------------------------------------------------------------ key dimensions and Fig 7
