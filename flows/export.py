@@ -7,12 +7,20 @@ from pathlib import Path
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from prl.export import ExportReport
+from prl.export import DEFAULT_FPS, ExportReport
 
 
 @task(name="export-lerobot", task_run_name="export-{repo_id}", cache_policy=NO_CACHE)
-def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: Path, repo_id: str) -> ExportReport:
-    """Write, reload, validate and move the dataset into place (not cached: the result is a directory)."""
-    from prl.export import export_lerobot
+def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: Path, repo_id: str,
+                   code_version: str) -> ExportReport:
+    """Write, reload, validate and move the dataset into place; or, when the dataset at ``root`` was
+    exported from the same demo bytes, labels and ``code_version`` (``prl.export.export_key``), reload
+    and validate it instead (``report.reused``). Prefect's result cache is not used: the result is a
+    directory that can change under it."""
+    from prl.export import export_key, export_lerobot, reusable_export
 
-    return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels)
+    key = export_key(demo_paths, labels, repo_id, DEFAULT_FPS, code_version)
+    report = reusable_export(root, repo_id, key)
+    if report is not None:
+        return report
+    return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key)

@@ -239,10 +239,11 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                        for p, lab in zip(demo_paths[task], labels[task]["recovered"])}
             repo_id = f"prl/{'-'.join(cfg.tasks)}"
             root = cfg.output_dir / "datasets" / f"{'-'.join(cfg.tasks)}-seed{cfg.seed}"
-            report = export_dataset(paths, by_path, root, repo_id)
+            report = export_dataset(paths, by_path, root, repo_id, version)
             digest = dataset_digest(report.root)
             mlflow.log_metrics({"episodes": report.n_episodes, "frames": report.n_frames,
-                                "size_mb": report.size_bytes / 1e6, "export_seconds": report.seconds})
+                                "size_mb": report.size_bytes / 1e6, "export_seconds": report.seconds,
+                                "reused": float(report.reused)})
             mlflow.log_params({"dataset_root": str(report.root), "repo_id": repo_id, "dataset_digest": digest})
             with warnings.catch_warnings():  # a local path matches two equivalent source kinds
                 warnings.simplefilter("ignore", UserWarning)
@@ -250,7 +251,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
             mlflow.log_input(MetaDataset(source, name=repo_id, digest=digest),
                              context="demonstrations")
             print(f"LeRobot dataset {repo_id}: {report.n_episodes} episodes, {report.n_frames} frames at "
-                  f"{report.root} (validated on reload)")
+                  f"{report.root} ({'an identical earlier export, ' if report.reused else ''}validated on reload)")
         if cfg.train_rn:
             results.update(_rn_stages(cfg, report.root, repo_id, version, out_dir))
         print(f"MLflow parent run {parent.info.run_id}: "

@@ -44,7 +44,7 @@ import os
 import shutil
 import time
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -57,6 +57,8 @@ CODEBASE_VERSION = "v3.0"
 DEFAULT_REPO_ID = "prl/hammer"
 """Default dataset identifier (only a name: nothing is pushed to the Hub)."""
 SCENES_FILE = "meta/prl_scenes.jsonl"
+#: The key of the inputs an export was written from (:func:`export_key`), for :func:`reusable_export`.
+EXPORT_KEY_FILE = "meta/prl_export_key.txt"
 """Sidecar written next to lerobot's metadata: one JSON line per episode with its scene (see
 :func:`read_scenes`); lerobot itself ignores it."""
 DEFAULT_FPS = 100
@@ -148,6 +150,8 @@ class ExportReport:
     """Wall time of the export (write + validate + move) or of the validation alone."""
     checked_against_demos: bool = False
     """True when episodes were compared with their demos (lengths, tasks, plan, label, a state)."""
+    reused: bool = False
+    """True when an identical earlier export was found, reloaded and validated instead of rewritten."""
 
 
 # ----------------------------------------------------------------------------- export
@@ -162,6 +166,7 @@ def export_lerobot(
     *,
     render_video: bool = False,
     fast_writes: bool = True,
+    key: str | None = None,
 ) -> ExportReport:
     """Export demos (``prl.demo`` ``.npz`` files) as a LeRobot v3.0 dataset at ``root``.
 
@@ -171,6 +176,8 @@ def export_lerobot(
     the dataset is written with ``use_videos=False`` and passing True raises NotImplementedError.
     ``fast_writes`` skips lerobot's per-frame image-embedding pass, a no-op without image
     features that costs ~6 ms a frame (see :func:`_quiet_fast_writes`); the files are the same.
+    ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
+    export can be skipped with :func:`reusable_export`.
 
     The dataset is written into ``root.parent / f".{root.name}.staging-<pid>"``, finalized,
     reloaded with ``LeRobotDataset`` and validated against the demos (:func:`validate_lerobot`);
@@ -210,6 +217,8 @@ def export_lerobot(
     try:
         with _quiet_fast_writes(fast=fast_writes):
             checks = _write(paths, staging, repo_id, fps, per_episode_label)
+            if key is not None:
+                (staging / EXPORT_KEY_FILE).write_text(key + "\n")
             report = validate_lerobot(staging, repo_id, expected=checks, drop_cache=True)
         _move_into_place(staging, root)
     except BaseException:
@@ -220,6 +229,38 @@ def export_lerobot(
         episode_lengths=report.episode_lengths, tasks=report.tasks, n_labelled=report.n_labelled,
         size_bytes=_tree_size(root), seconds=time.perf_counter() - t0, checked_against_demos=True,
     )
+
+
+def export_key(demo_paths: Sequence[Path | str], labels: Mapping[str, Sequence[int]] | None, repo_id: str,
+               fps: int, code_version: str) -> str:
+    """A digest of everything an export is made from: each demo file's name and bytes, in order, its
+    label (looked up by the path as given), ``repo_id``, ``fps`` and ``code_version``. Demo files are
+    written once and never change, so an equal key means an equal dataset."""
+    import hashlib
+
+    h = hashlib.sha256(json.dumps([repo_id, fps, code_version]).encode())
+    for p in demo_paths:
+        path = Path(p)
+        label = None if labels is None else labels.get(str(p))
+        h.update(json.dumps([path.name, None if label is None else [int(v) for v in label]]).encode())
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()[:20]
+
+
+def reusable_export(root: Path | str, repo_id: str, key: str) -> ExportReport | None:
+    """The validated report of the dataset at ``root`` if it was exported with ``key``; else None.
+
+    The dataset is still reloaded with ``LeRobotDataset`` and checked (:func:`validate_lerobot`), so a
+    damaged one raises ExportError instead of being reused."""
+    t0 = time.perf_counter()
+    root = Path(os.path.abspath(root))
+    stored = root / EXPORT_KEY_FILE
+    if not stored.is_file() or stored.read_text().strip() != key:
+        return None
+    report = validate_lerobot(root, repo_id, drop_cache=True)
+    return replace(report, size_bytes=_tree_size(root), seconds=time.perf_counter() - t0, reused=True)
 
 
 def lerobot_features() -> dict[str, dict[str, Any]]:

@@ -24,9 +24,12 @@ from prl.export import (
     FEATURES,
     NO_LABEL,
     ExportError,
+    EXPORT_KEY_FILE,
     episode_frames,
+    export_key,
     export_lerobot,
     lerobot_features,
+    reusable_export,
     validate_lerobot,
 )
 
@@ -171,6 +174,39 @@ def test_synthetic_round_trip_and_stale_staging_cleanup(tmp_path: Path, syntheti
     assert item["label"].tolist() == [0, 1, 2, 3, 4, 5]
     assert ds[0]["label"].tolist() == [NO_LABEL] * 6
     assert item["task"] == d1.text
+
+
+def test_export_key_and_reuse(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    labels = {str(synthetic_paths[0]): [0, 1, 2, 3, 0, 1]}
+    key = export_key(synthetic_paths, labels, REPO_ID, 100, "v1")
+    assert key == export_key(list(synthetic_paths), dict(labels), REPO_ID, 100, "v1")  # a pure function
+    changed = {  # every input the dataset is made from changes the key
+        export_key(synthetic_paths[::-1], labels, REPO_ID, 100, "v1"),
+        export_key(synthetic_paths, {str(synthetic_paths[0]): [0, 1, 2, 3, 0, 2]}, REPO_ID, 100, "v1"),
+        export_key(synthetic_paths, labels, "prl/other", 100, "v1"),
+        export_key(synthetic_paths, labels, REPO_ID, 50, "v1"),
+        export_key(synthetic_paths, labels, REPO_ID, 100, "v2"),
+    }
+    assert key not in changed and len(changed) == 5
+    root = tmp_path / "ds"
+    assert reusable_export(root, REPO_ID, key) is None  # nothing there yet
+    first = export_lerobot(synthetic_paths, root, repo_id=REPO_ID, per_episode_label=labels, key=key)
+    assert (root / EXPORT_KEY_FILE).read_text().strip() == key and not first.reused
+    again = reusable_export(root, REPO_ID, key)
+    assert again is not None and again.reused and again.n_episodes == 2 and again.n_frames == first.n_frames
+    assert reusable_export(root, REPO_ID, "another-key") is None
+    # a demo file whose bytes changed gives a new key
+    tampered = tmp_path / "tampered" / synthetic_paths[1].name
+    tampered.parent.mkdir()
+    raw = bytearray(synthetic_paths[1].read_bytes())
+    raw[-1] ^= 1
+    tampered.write_bytes(bytes(raw))
+    assert export_key([synthetic_paths[0], tampered], labels, REPO_ID, 100, "v1") != key
+    # a damaged dataset with a matching key is an error, not a silent reuse
+    for f in (root / "data").glob("*/*.parquet"):
+        f.write_bytes(b"not parquet")
+    with pytest.raises(ExportError, match="unreadable"):
+        reusable_export(root, REPO_ID, key)
 
 
 def test_failed_validation_keeps_existing_dataset(tmp_path: Path, synthetic_paths: list[Path],
