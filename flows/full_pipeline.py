@@ -66,7 +66,7 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
     from prl.features import FEATURE_LAYOUT, split_by_seed
     from prl.plb import load_plb
     from prl.plots import plot_rn_probabilities
-    from prl.rn import RNConfig, per_dim_accuracy, plan_library, predict_proba, save_rn, train_rn
+    from prl.rn import RNConfig, per_dim_accuracy, plan_libraries, predict_proba, save_rn, train_rn
 
     plb = load_plb()
     models_dir = cfg.output_dir / "models"
@@ -103,8 +103,8 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
         fig = plot_rn_probabilities(probs_by_task, plb.dim_names, [d.choices for d in plb.dims],
                                     out_dir / "rn_probabilities.png")
         mlflow.log_artifact(str(fig))
-        model.plan_library = plan_library(y[train])  # for the library decoding of rn-eval
-        mlflow.log_metric("plan_library_size", len(model.plan_library))
+        model.plan_libraries = plan_libraries(y[train], [data["tasks"][i] for i in train])  # rn-eval's decodings
+        mlflow.log_metrics({f"{t}/plan_library_size": len(lib) for t, lib in model.plan_libraries.items()})
         rn_path = save_rn(model, rn_cfg, FEATURE_LAYOUT, models_dir / f"rn-seed{cfg.seed}.pt")
         mlflow.log_artifact(str(rn_path))
         diff = log_registered_rn(model, x[val])

@@ -54,10 +54,32 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
             "tasks": list(episodes.tasks), "texts": list(episodes.texts)}
 
 
+#: How the RN's per-dimension distributions become one plan (each evaluated in simulation): 'rn' the
+#: per-dimension argmax (the paper), 'rn_library' the most probable plan among the task's demonstrated
+#: plans, 'rn_success' the same divided by the sampling prior (ranks by success probability); see
+#: ``prl.rn.library_plan``.
+DECODINGS: tuple[str, ...] = ("rn", "rn_library", "rn_success")
+
+
+def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, tuple[np.ndarray, ...] | None]:
+    """(library, prior) of ``predict_plan`` for a decoding of ``DECODINGS``; a clear error for an unknown one or
+    a model without a plan library for the task."""
+    from prl.plb import load_plb
+
+    if kind not in DECODINGS:
+        raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}")
+    if kind == "rn":
+        return None, None
+    if task_name not in model.plan_libraries:
+        raise ValueError(f"decoding {kind!r} needs a plan library for task {task_name!r}; the model has "
+                         f"{sorted(model.plan_libraries) or 'none'}")
+    return model.plan_libraries[task_name], (load_plb().prior(task_name) if kind == "rn_success" else None)
+
+
 def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds: list[int], n_points: int,
-              library: np.ndarray | None = None):
-    """An ``envs.trials.Policy`` choosing the RN's plan from the live scene's features: the per-dimension
-    argmax, or with ``library`` the most probable library plan (``prl.rn.library_plan``).
+              kind: str = "rn"):
+    """An ``envs.trials.Policy`` choosing the RN's plan from the live scene's features, decoded as ``kind``
+    (one of ``DECODINGS``).
 
     Trial ``i`` runs on the scene of ``seeds[i]``; its task sentence cycles through the task's
     phrasings in the PLB catalogue.
@@ -65,20 +87,22 @@ def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds
     from prl.features import scene_features
     from prl.rn import predict_plan
 
+    library, prior = decoding(model, task_name, kind)
+
     def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
         x = scene_features(task_name, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)],
                            pointnet, n_points)
-        return predict_plan(model, x, library)[0].tolist()
+        return predict_plan(model, x, library, prior)[0].tolist()
 
     return choose
 
 
 @task(name="rn-eval-sim", task_run_name="rn-eval-{task_name}-x{randomization}", cache_policy=NO_CACHE)
 def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int,
-                    n_frames: int, randomization: float, prior_seed: int) -> dict[str, list]:
-    """On each of ``seeds``' scenes execute the RN's per-dimension argmax plan ('rn'), its most probable plan
-    among the demonstrated ones ('rn_library', when the checkpoint holds a plan library) and a
-    prior-sampled plan ('prior'); the outcomes of each."""
+                    n_frames: int, randomization: float, prior_seed: int,
+                    decodings: tuple[str, ...] = DECODINGS) -> dict[str, list]:
+    """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and a prior-sampled plan
+    ('prior'); the outcomes of each, keyed by decoding."""
     from envs.trials import plan_set, run_policy, run_trials
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
@@ -88,9 +112,8 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
     texts = list(load_plb().texts(task_name))
     pointnet = load_pointnet(pointnet_path)
     out: dict[str, list] = {}
-    decodings = {"rn": None} | ({"rn_library": model.plan_library} if model.plan_library is not None else {})
-    for kind, library in decodings.items():
-        policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, library)
+    for kind in decodings:
+        policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, kind)
         out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
                                desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
     out["prior"] = run_trials(task_name, plan_set(task_name, "prior", len(seeds), prior_seed), seeds,

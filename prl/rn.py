@@ -287,7 +287,7 @@ class RepresentationNetwork(nn.Module):
     ``Linear(128, sum(dims))``. Inputs are standardised by the ``x_mean``/``x_std`` buffers (set from
     the training set by :func:`train_rn`; identity until then) before the first layer. ``config`` and
     ``layout`` are set by :func:`train_rn` / :func:`load_rn` (``None`` on a bare network), and so is
-    ``plan_library`` by :func:`load_rn` when the checkpoint holds one."""
+    ``plan_libraries`` by :func:`load_rn` when the checkpoint holds them."""
 
     def __init__(self, in_dim: int, dims: Sequence[int] = RS_DIMS) -> None:
         super().__init__()
@@ -308,8 +308,9 @@ class RepresentationNetwork(nn.Module):
         self.register_buffer("x_std", torch.ones(self.in_dim))
         self.config: RNConfig | None = None
         self.layout: FeatureLayout | None = None
-        self.plan_library: np.ndarray | None = None
-        """(K, n) demonstrated plans for :func:`library_plan` decoding (set by the caller; saved with the model)."""
+        self.plan_libraries: dict[str, np.ndarray] = {}
+        """Per task, the (K, n) demonstrated plans for :func:`library_plan` decoding (set by the caller with
+        :func:`plan_libraries`; saved with the model)."""
 
     def set_standardisation(self, mean: np.ndarray | Tensor, std: np.ndarray | Tensor) -> None:
         """Set the input standardisation ``(x - mean) / std`` (std entries below ``STD_FLOOR`` -> 1)."""
@@ -517,15 +518,21 @@ def predict_proba(model: RepresentationNetwork, x: Any) -> list[np.ndarray]:
     return [torch.softmax(p, dim=-1).numpy() for p in parts]
 
 
-def library_plan(probs: Sequence[np.ndarray], library: Any) -> np.ndarray:
+def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """Joint decoding over a plan library: for each of N samples, the library plan with the largest
-    ``sum_i log p_i(choice_i)``; returns (N, n) int64 (ties: the earlier library row).
+    ``sum_i log p_i(choice_i)`` (minus ``sum_i log prior_i(choice_i)`` when ``prior`` is given);
+    returns (N, n) int64 (ties: the earlier library row).
 
     ``probs`` are :func:`predict_proba`'s per-dimension (N, m_i) probabilities; ``library`` is a (K, n)
     array of plan vectors, e.g. the distinct plans the training demos executed successfully. The RN's
     heads are independent, so the per-dimension argmax is the joint argmax over *all* plans; it can
     combine choices that were never demonstrated together. Restricting the argmax to the library
-    keeps the RN's ranking but only among combinations physics has confirmed somewhere."""
+    keeps the RN's ranking but only among combinations physics has confirmed somewhere.
+
+    ``prior`` (per dimension, the (m_i,) probabilities the demos' plans were sampled with): the RN
+    learns p(plan | scene, success), which by Bayes is proportional to prior(plan) * P(success | plan,
+    scene). Dividing by the prior ranks plans by their success probability instead of by how often
+    the sampler tried them."""
     lib = np.asarray(library)
     n = len(probs)
     if lib.ndim != 2 or lib.shape[0] < 1 or lib.shape[1] != n:
@@ -537,17 +544,27 @@ def library_plan(probs: Sequence[np.ndarray], library: Any) -> np.ndarray:
         if bad.any():
             raise ValueError(f"plan library row {int(np.argmax(bad))} has choice {int(lib[bad, i][0])} for "
                              f"dimension {i}, which has {p.shape[1]} choices")
+    if prior is not None:
+        if len(prior) != n or any(np.shape(q) != (p.shape[1],) or np.any(np.asarray(q) <= 0)
+                                  for q, p in zip(prior, probs)):
+            raise ValueError(f"prior must give {n} dimensions of positive probabilities of sizes "
+                             f"{[p.shape[1] for p in probs]}, got sizes {[np.shape(q) for q in prior]}")
     # (N, K) scores; the floor keeps log finite where a probability underflows to 0
     score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))
+    if prior is not None:
+        score = score - sum(np.log(np.asarray(q, dtype=float))[lib[:, i]] for i, q in enumerate(prior))
     return lib[np.argmax(score, axis=1)].astype(np.int64)
 
 
-def predict_plan(model: RepresentationNetwork, x: Any, library: Any = None) -> np.ndarray:
+def predict_plan(model: RepresentationNetwork, x: Any, library: Any = None,
+                 prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """The (N, n) int64 plan vectors: per dimension the most probable choice (the paper's decoding),
-    or with ``library`` the most probable plan among the library's rows (:func:`library_plan`)."""
+    or with ``library`` the best plan among the library's rows (:func:`library_plan`, with ``prior``)."""
     probs = predict_proba(model, x)
     if library is not None:
-        return library_plan(probs, library)
+        return library_plan(probs, library, prior)
+    if prior is not None:
+        raise ValueError("prior correction needs a plan library (pass library=...)")
     return np.stack([p.argmax(axis=-1) for p in probs], axis=1).astype(np.int64)
 
 
@@ -557,6 +574,15 @@ def plan_library(plans: Any) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[0] < 1:
         raise ValueError(f"plans must have shape (N >= 1, n), got {arr.shape}")
     return np.unique(arr, axis=0)
+
+
+def plan_libraries(plans: Any, tasks: Sequence[str]) -> dict[str, np.ndarray]:
+    """Per task, :func:`plan_library` of that task's rows of ``plans``."""
+    arr = np.asarray(plans)
+    names = np.asarray(list(tasks))
+    if len(names) != len(arr):
+        raise ValueError(f"plans and tasks differ in length: {len(arr)} != {len(names)}")
+    return {str(t): plan_library(arr[names == t]) for t in sorted(set(names.tolist()))}
 
 
 def per_dim_accuracy(model: RepresentationNetwork, x: Any, y: Any) -> np.ndarray:
@@ -615,26 +641,26 @@ def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0) -> list[Dimens
 
 
 def save_rn(model: RepresentationNetwork, cfg: RNConfig, layout: FeatureLayout, path: str | Path) -> Path:
-    """Write the model, its config, its input layout and its ``plan_library`` (if set) to ``path``
-    (torch file); return the path."""
+    """Write the model, its config, its input layout and its ``plan_libraries`` to ``path`` (torch file);
+    return the path."""
     if layout.dim != model.in_dim:
         raise ValueError(f"layout length {layout.dim} ({layout.describe()}) does not match the model's "
                          f"input length {model.in_dim}")
     if tuple(cfg.dims) != model.dims:
         raise ValueError(f"cfg.dims {cfg.dims} does not match the model's dims {model.dims}")
-    library = None
-    if model.plan_library is not None:
-        lib = np.asarray(model.plan_library)
+    libraries: dict[str, list[list[int]]] = {}
+    for task, lib in model.plan_libraries.items():
+        lib = np.asarray(lib)
         if lib.ndim != 2 or lib.shape[1] != len(model.dims) or not np.issubdtype(lib.dtype, np.integer) \
                 or (lib < 0).any() or (lib >= np.asarray(model.dims)).any():
-            raise ValueError(f"model.plan_library must be (K, {len(model.dims)}) choices within {model.dims}, "
-                             f"got shape {lib.shape}")
-        library = lib.astype(np.int64).tolist()
+            raise ValueError(f"plan library of task {task!r} must be (K, {len(model.dims)}) choices within "
+                             f"{model.dims}, got shape {lib.shape}")
+        libraries[str(task)] = lib.astype(np.int64).tolist()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cfg_dict = asdict(cfg) | {"dims": list(cfg.dims)}
     payload = {"format": CHECKPOINT_FORMAT, "in_dim": model.in_dim, "dims": list(model.dims),
-               "config": cfg_dict, "layout": layout.to_json(), "plan_library": library,
+               "config": cfg_dict, "layout": layout.to_json(), "plan_libraries": libraries,
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}}
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
@@ -666,7 +692,7 @@ def load_rn(path: str | Path, expected_layout: FeatureLayout | None = None) -> R
     model = RepresentationNetwork(int(payload["in_dim"]), tuple(payload["dims"]))
     model.load_state_dict(payload["state_dict"])
     model.config, model.layout = cfg, layout
-    if payload.get("plan_library") is not None:
-        model.plan_library = np.asarray(payload["plan_library"], dtype=np.int64)
+    model.plan_libraries = {t: np.asarray(lib, dtype=np.int64)
+                            for t, lib in (payload.get("plan_libraries") or {}).items()}
     model.eval()
     return model

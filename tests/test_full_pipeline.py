@@ -67,7 +67,7 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     rn = children[children["tags.mlflow.runName"] == "rn-train"].iloc[0]
     assert (rn["metrics.n_train"], rn["metrics.n_val"]) == (2.0, 1.0)
     assert rn["metrics.registered_reload_max_abs_diff"] == 0.0
-    assert 1.0 <= rn["metrics.plan_library_size"] <= 2.0  # distinct plans of the two training demos
+    assert 1.0 <= rn["metrics.hammer/plan_library_size"] <= 2.0  # distinct plans of the two training demos
     assert 0.0 <= rn["metrics.val_accuracy/grasp_pattern"] <= 1.0
     history = mlflow.tracking.MlflowClient().get_metric_history(rn["run_id"], "rn/loss_ce")
     assert [m.step for m in history] == [0, 1, 2]
@@ -76,6 +76,6 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert (tmp_path / "out" / "run-seed0" / "rn_probabilities.png").stat().st_size > 10_000
     ev = children[children["tags.mlflow.runName"] == "rn-eval"].iloc[0]
     for split in ("train_ranges", "wide_ranges"):
-        for kind in ("rn", "rn_library", "prior"):
+        for kind in ("rn", "rn_library", "rn_success", "prior"):
             assert ev[f"metrics.hammer/{split}/{kind}_success_rate"] in (0.0, 1.0)
     assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1

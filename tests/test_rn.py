@@ -22,6 +22,7 @@ from prl.rn import (
     library_plan,
     load_rn,
     per_dim_accuracy,
+    plan_libraries,
     plan_library,
     predict_plan,
     predict_proba,
@@ -307,13 +308,15 @@ def test_save_load_round_trip_and_layout_mismatch(tmp_path: Path) -> None:
     for a, b in zip(predict_proba(model, x), predict_proba(loaded, x), strict=True):
         assert np.array_equal(a, b)
     assert np.array_equal(predict_plan(model, x), predict_plan(loaded, x))
-    assert loaded.plan_library is None
-    model.plan_library = plan_library(y[:5])
+    assert loaded.plan_libraries == {}
+    model.plan_libraries = plan_libraries(y[:6], ["a", "b"] * 3)
     again = load_rn(save_rn(model, cfg, layout, tmp_path / "lib.pt"))
-    assert np.array_equal(again.plan_library, plan_library(y[:5]))
-    assert np.array_equal(predict_plan(again, x, again.plan_library), predict_plan(model, x, model.plan_library))
-    model.plan_library = np.array([[0, 4]])  # dimension 1 has 4 choices
-    with pytest.raises(ValueError, match=r"plan_library must be \(K, 2\) choices within \(3, 4\)"):
+    assert sorted(again.plan_libraries) == ["a", "b"]
+    assert np.array_equal(again.plan_libraries["b"], plan_library(y[1:6:2]))
+    assert np.array_equal(predict_plan(again, x, again.plan_libraries["a"]),
+                          predict_plan(model, x, model.plan_libraries["a"]))
+    model.plan_libraries = {"a": np.array([[0, 4]])}  # dimension 1 has 4 choices
+    with pytest.raises(ValueError, match=r"task 'a' must be \(K, 2\) choices within \(3, 4\)"):
         save_rn(model, cfg, layout, tmp_path / "badlib.pt")
     other = FeatureLayout((("a", 5), ("b", 5)))
     with pytest.raises(ValueError, match=r"a 6 \| b 4 = 10.*a 5 \| b 5 = 10"):
@@ -343,12 +346,25 @@ def test_library_plan_hand_computed() -> None:
     # the full grid as library gives back the per-dimension argmax
     grid = np.array([[a, b] for a in range(3) for b in range(2)])
     assert library_plan(probs, grid).tolist() == [[0, 1], [2, 0]]
+    # prior correction: divide by prior (.5,.25,.25) x (.8,.2): sample 0 .2/.4 = .5, .18/.05 = 3.6, .12/.05 = 2.4
+    prior = [np.array([0.5, 0.25, 0.25]), np.array([0.8, 0.2])]
+    assert library_plan(probs, library, prior).tolist()[0] == [1, 1]
+    # sample 1: .09/.4 = .225, .01/.05 = .2, .08/.05 = 1.6 -> (2, 1)
+    assert library_plan(probs, library, prior).tolist()[1] == [2, 1]
+    with pytest.raises(ValueError, match="positive probabilities of sizes"):
+        library_plan(probs, library, [np.array([0.5, 0.5, 0.0]), np.array([0.8, 0.2])])
+    with pytest.raises(ValueError, match="needs a plan library"):
+        predict_plan(RepresentationNetwork(4, (3, 2)), np.zeros((1, 4)), prior=prior)
     # a zero probability does not make every score -inf
     assert library_plan([np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0]])], library).tolist() == [[0, 0]]
 
 
 def test_plan_library_is_sorted_distinct_rows() -> None:
     assert plan_library([[2, 1], [0, 3], [2, 1]]).tolist() == [[0, 3], [2, 1]]
+    libs = plan_libraries([[2, 1], [0, 3], [2, 1], [1, 1]], ["t", "u", "t", "u"])
+    assert {k: v.tolist() for k, v in libs.items()} == {"t": [[2, 1]], "u": [[0, 3], [1, 1]]}
+    with pytest.raises(ValueError, match="differ in length: 2 != 1"):
+        plan_libraries([[0, 1], [1, 0]], ["t"])
     with pytest.raises(ValueError, match=r"\(N >= 1, n\), got \(0,\)"):
         plan_library([])
 
@@ -391,3 +407,21 @@ def test_plot_rn_probabilities(tmp_path: Path) -> None:
     assert out.is_file() and out.stat().st_size > 10_000
     with pytest.raises(ValueError, match="'hammer'"):
         plot_rn_probabilities({"hammer": probs["hammer"][:5]}, names, choices, tmp_path / "bad.png")
+
+
+def test_pipeline_decodings_resolve_or_name_what_is_missing() -> None:
+    from flows.train_rn import DECODINGS, decoding
+    from prl.plb import load_plb
+
+    model = RepresentationNetwork(4)
+    assert DECODINGS == ("rn", "rn_library", "rn_success")
+    assert decoding(model, "hammer", "rn") == (None, None)
+    with pytest.raises(ValueError, match=r"'rn_library' needs a plan library for task 'hammer'; the model has none"):
+        decoding(model, "hammer", "rn_library")
+    with pytest.raises(ValueError, match=r"unknown RN decoding 'greedy'; known: rn, rn_library, rn_success"):
+        decoding(model, "hammer", "greedy")
+    model.plan_libraries = {"hammer": np.array([[0, 3, 3, 0, 0, 1]])}
+    library, prior = decoding(model, "hammer", "rn_library")
+    assert library.tolist() == [[0, 3, 3, 0, 0, 1]] and prior is None
+    library, prior = decoding(model, "hammer", "rn_success")
+    assert [p.tolist() for p in prior] == [p.tolist() for p in load_plb().prior("hammer")]
