@@ -101,8 +101,9 @@ def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds
 def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int,
                     n_frames: int, randomization: float, prior_seed: int,
                     decodings: tuple[str, ...] = DECODINGS) -> dict[str, list]:
-    """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and a prior-sampled plan
-    ('prior'); the outcomes of each, keyed by decoding."""
+    """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and two baselines: a
+    plan sampled from the task prior the demos were drawn from ('prior') and the task's hand-written
+    expert plan, the same on every scene ('expert'); the outcomes of each, keyed by decoding or baseline."""
     from envs.trials import plan_set, run_policy, run_trials
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
@@ -116,6 +117,7 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
         policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, kind)
         out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
                                desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
-    out["prior"] = run_trials(task_name, plan_set(task_name, "prior", len(seeds), prior_seed), seeds,
-                              n_frames=n_frames, randomization=randomization)
+    for kind, plan_seed in (("prior", prior_seed), ("expert", 0)):
+        out[kind] = run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds,
+                               n_frames=n_frames, randomization=randomization)
     return out

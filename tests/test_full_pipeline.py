@@ -76,6 +76,6 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert (tmp_path / "out" / "run-seed0" / "rn_probabilities.png").stat().st_size > 10_000
     ev = children[children["tags.mlflow.runName"] == "rn-eval"].iloc[0]
     for split in ("train_ranges", "wide_ranges"):
-        for kind in ("rn", "rn_library", "rn_success", "prior"):
+        for kind in ("rn", "rn_library", "rn_success", "prior", "expert"):
             assert ev[f"metrics.hammer/{split}/{kind}_success_rate"] in (0.0, 1.0)
     assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1
