@@ -239,7 +239,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                        for p, lab in zip(demo_paths[task], labels[task]["recovered"])}
             repo_id = f"prl/{'-'.join(cfg.tasks)}"
             root = cfg.output_dir / "datasets" / f"{'-'.join(cfg.tasks)}-seed{cfg.seed}"
-            report = export_dataset(paths, by_path, root, repo_id, version)
+            report = export_dataset(paths, by_path, root, repo_id)
             digest = dataset_digest(report.root)
             mlflow.log_metrics({"episodes": report.n_episodes, "frames": report.n_frames,
                                 "size_mb": report.size_bytes / 1e6, "export_seconds": report.seconds,

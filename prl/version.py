@@ -21,6 +21,19 @@ def code_version() -> str:
     return h.hexdigest()[:16]
 
 
+def source_version(*relative_paths: str) -> str:
+    """A digest of the named source files (paths relative to the repository root), for caches that depend
+    on those files alone; a missing file raises FileNotFoundError naming it."""
+    h = hashlib.sha256()
+    for rel in relative_paths:
+        path = REPO_ROOT / rel
+        if not path.is_file():
+            raise FileNotFoundError(f"source file {rel!r} not found under {REPO_ROOT}")
+        h.update(rel.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def git_commit() -> str:
     """The checked-out git commit, or 'unknown'."""
     try:

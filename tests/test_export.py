@@ -325,3 +325,20 @@ def test_failed_export_leaves_good_dataset_untouched(tmp_path: Path, sim_demos: 
     report = export_lerobot(sim_demos[:2], root, repo_id=REPO_ID)
     assert report.n_episodes == 2 and _load_dataset(root).num_episodes == 2
     assert _siblings(root) == []
+
+
+def test_export_cache_version_covers_the_export_sources_only() -> None:
+    import hashlib
+
+    from flows.export import EXPORT_SOURCES
+    from prl.constants import REPO_ROOT
+    from prl.version import source_version
+
+    expected = hashlib.sha256()
+    for rel in EXPORT_SOURCES:
+        expected.update(rel.encode())
+        expected.update((REPO_ROOT / rel).read_bytes())
+    assert source_version(*EXPORT_SOURCES) == expected.hexdigest()[:16]
+    assert "prl/rn.py" not in EXPORT_SOURCES  # RN work does not invalidate the dataset
+    with pytest.raises(FileNotFoundError, match="'prl/nope.py'"):
+        source_version("prl/nope.py")
