@@ -57,10 +57,10 @@ CODEBASE_VERSION = "v3.0"
 DEFAULT_REPO_ID = "prl/hammer"
 """Default dataset identifier (only a name: nothing is pushed to the Hub)."""
 SCENES_FILE = "meta/prl_scenes.jsonl"
-#: The key of the inputs an export was written from (:func:`export_key`), for :func:`reusable_export`.
-EXPORT_KEY_FILE = "meta/prl_export_key.txt"
 """Sidecar written next to lerobot's metadata: one JSON line per episode with its scene (see
 :func:`read_scenes`); lerobot itself ignores it."""
+EXPORT_KEY_FILE = "meta/prl_export_key.txt"
+"""The key of the inputs an export was written from (:func:`export_key`), for :func:`reusable_export`."""
 DEFAULT_FPS = 100
 """Recording rate of the demos (``ExecutorConfig.record_every`` = 5 at 500 Hz physics)."""
 ROBOT_TYPE = "prl_hand"

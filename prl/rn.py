@@ -533,17 +533,8 @@ def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.n
     learns p(plan | scene, success), which by Bayes is proportional to prior(plan) * P(success | plan,
     scene). Dividing by the prior ranks plans by their success probability instead of by how often
     the sampler tried them."""
-    lib = np.asarray(library)
     n = len(probs)
-    if lib.ndim != 2 or lib.shape[0] < 1 or lib.shape[1] != n:
-        raise ValueError(f"plan library must have shape (K >= 1, {n}), got {lib.shape}")
-    if not np.issubdtype(lib.dtype, np.integer):
-        raise ValueError(f"plan library must hold integer choices, got dtype {lib.dtype}")
-    for i, p in enumerate(probs):
-        bad = (lib[:, i] < 0) | (lib[:, i] >= p.shape[1])
-        if bad.any():
-            raise ValueError(f"plan library row {int(np.argmax(bad))} has choice {int(lib[bad, i][0])} for "
-                             f"dimension {i}, which has {p.shape[1]} choices")
+    lib = check_library(library, [p.shape[1] for p in probs])
     if prior is not None:
         if len(prior) != n or any(np.shape(q) != (p.shape[1],) or np.any(np.asarray(q) <= 0)
                                   for q, p in zip(prior, probs)):
@@ -553,7 +544,24 @@ def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.n
     score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))
     if prior is not None:
         score = score - sum(np.log(np.asarray(q, dtype=float))[lib[:, i]] for i, q in enumerate(prior))
-    return lib[np.argmax(score, axis=1)].astype(np.int64)
+    return lib[np.argmax(score, axis=1)]
+
+
+def check_library(library: Any, dims: Sequence[int], what: str = "plan library") -> np.ndarray:
+    """``library`` as a (K >= 1, len(dims)) int64 array of choices within ``dims``; else ValueError naming the
+    shape, dtype, or the first row with an out-of-range choice (``what`` starts the message)."""
+    lib = np.asarray(library)
+    n = len(dims)
+    if lib.ndim != 2 or lib.shape[0] < 1 or lib.shape[1] != n:
+        raise ValueError(f"{what} must have shape (K >= 1, {n}), got {lib.shape}")
+    if not np.issubdtype(lib.dtype, np.integer):
+        raise ValueError(f"{what} must hold integer choices, got dtype {lib.dtype}")
+    for i, m in enumerate(dims):
+        bad = (lib[:, i] < 0) | (lib[:, i] >= m)
+        if bad.any():
+            raise ValueError(f"{what} row {int(np.argmax(bad))} has choice {int(lib[bad, i][0])} for "
+                             f"dimension {i}, which has {m} choices")
+    return lib.astype(np.int64)
 
 
 def predict_plan(model: RepresentationNetwork, x: Any, library: Any = None,
@@ -650,12 +658,7 @@ def save_rn(model: RepresentationNetwork, cfg: RNConfig, layout: FeatureLayout, 
         raise ValueError(f"cfg.dims {cfg.dims} does not match the model's dims {model.dims}")
     libraries: dict[str, list[list[int]]] = {}
     for task, lib in model.plan_libraries.items():
-        lib = np.asarray(lib)
-        if lib.ndim != 2 or lib.shape[1] != len(model.dims) or not np.issubdtype(lib.dtype, np.integer) \
-                or (lib < 0).any() or (lib >= np.asarray(model.dims)).any():
-            raise ValueError(f"plan library of task {task!r} must be (K, {len(model.dims)}) choices within "
-                             f"{model.dims}, got shape {lib.shape}")
-        libraries[str(task)] = lib.astype(np.int64).tolist()
+        libraries[str(task)] = check_library(lib, model.dims, f"plan library of task {task!r}").tolist()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cfg_dict = asdict(cfg) | {"dims": list(cfg.dims)}
