@@ -19,6 +19,7 @@ import numpy as np
 from prefect import flow
 
 from flows.assets import verify_assets
+from flows.evaluate_rn import log_rn_eval
 from flows.export import export_dataset
 from flows.labels import recover_labels
 from flows.plan_trials import plan_trials
@@ -27,7 +28,7 @@ from flows.synthesize import shard_specs, synthesize
 from flows.train_rn import evaluate_in_sim, rn_features, train_pointnet_stage
 from prl import tracking
 from prl.config import ConfigError, PipelineConfig, make_config
-from prl.version import code_version, git_commit
+from prl.version import code_version, file_digest, git_commit
 
 PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
 
@@ -104,6 +105,8 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
                                     out_dir / "rn_probabilities.png")
         mlflow.log_artifact(str(fig))
         model.plan_libraries = plan_libraries(y[train], [data["tasks"][i] for i in train])  # rn-eval's decodings
+        model.plan_priors = {t: plb.prior(t) for t in model.plan_libraries}  # the prior synthesis sampled from
+        model.pointnet_sha256 = file_digest(pn_path)
         mlflow.log_metrics({f"{t}/plan_library_size": len(lib) for t, lib in model.plan_libraries.items()})
         rn_path = save_rn(model, rn_cfg, FEATURE_LAYOUT, models_dir / f"rn-seed{cfg.seed}.pt")
         mlflow.log_artifact(str(rn_path))
@@ -118,14 +121,8 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
                 seeds = [10_000_000 + 1_000 * cfg.seed + i for i in range(cfg.rn_eval_scenes)]
                 out = evaluate_in_sim(rn_path, pn_path, task, seeds, cfg.n_points, cfg.episode_frames, scale,
                                       cfg.seed + 31)
-                rates = {kind: float(np.mean([o.success for o in outs])) for kind, outs in out.items()}
-                mlflow.log_metrics({f"{task}/{split}/{kind}_success_rate": r for kind, r in rates.items()})
-                mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success,
-                                         "measure": o.measure} for o in outs] for kind, outs in out.items()},
-                                f"{task}_{split}_rn_eval.json")
-                results[f"{task}/rn/{split}"] = rates
-                print(f"{task} ({split}) plan success on {len(seeds)} unseen scenes: "
-                      + ", ".join(f"{kind} {rate:.2f}" for kind, rate in rates.items()))
+                print(f"{task} ({split}): plans executed on {len(seeds)} unseen scenes")
+                results[f"{task}/rn/{split}"] = log_rn_eval(task, split, out)
     return results
 
 

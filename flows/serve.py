@@ -6,6 +6,7 @@ process registers the deployments and executes their runs; trigger one with e.g.
     prefect deployment run 'prl-full-pipeline/quick'
     prefect deployment run 'prl-full-pipeline/quick' --param overrides='{"demos_per_task": 8}'
     prefect deployment run 'prl-full-pipeline/paper'
+    prefect deployment run 'prl-rn-eval/default' --param rn_path=/tmp/rnrun/models/rn-seed0.pt
 
 Runs execute in this process, with the repo as working directory, so they use the same
 MLflow store (``<repo>/mlflow.db``) as ``python -m flows.full_pipeline``.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 from prefect import serve
 
+from flows.evaluate_rn import evaluate_rn
 from flows.full_pipeline import full_pipeline
 
 
@@ -24,6 +26,8 @@ def main() -> None:
                                     description="Quick profile: minutes on a laptop."),
         full_pipeline.to_deployment(name="paper", parameters={"profile": "paper"},
                                     description="The paper's scale (2,000 demos per task)."),
+        evaluate_rn.to_deployment(name="default", description="A trained RN checkpoint in simulation on unseen "
+                                  "scenes (rn_path required; first_seed, scenes, randomization, decodings)."),
     )
 
 

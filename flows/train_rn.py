@@ -63,7 +63,10 @@ DECODINGS: tuple[str, ...] = ("rn", "rn_library", "rn_success")
 
 def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, tuple[np.ndarray, ...] | None]:
     """(library, prior) of ``predict_plan`` for a decoding of ``DECODINGS``; a clear error for an unknown one or
-    a model without a plan library for the task."""
+    a model without a plan library for the task.
+
+    'rn_success' divides by the prior stored with the model (``model.plan_priors``); a checkpoint written
+    before priors were stored falls back to the task's prior in the current PLB catalogue."""
     from prl.plb import load_plb
 
     if kind not in DECODINGS:
@@ -73,7 +76,21 @@ def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, 
     if task_name not in model.plan_libraries:
         raise ValueError(f"decoding {kind!r} needs a plan library for task {task_name!r}; the model has "
                          f"{sorted(model.plan_libraries) or 'none'}")
-    return model.plan_libraries[task_name], (load_plb().prior(task_name) if kind == "rn_success" else None)
+    if kind == "rn_library":
+        return model.plan_libraries[task_name], None
+    prior = model.plan_priors.get(task_name) or load_plb().prior(task_name)
+    return model.plan_libraries[task_name], prior
+
+
+def check_pointnet(model: Any, pointnet_path: Path) -> None:
+    """ValueError when the RN records the PointNet it was trained with and ``pointnet_path`` is another one
+    (its features would not be the ones the RN learned from)."""
+    from prl.version import file_digest
+
+    digest = file_digest(pointnet_path)
+    if model.pointnet_sha256 is not None and digest != model.pointnet_sha256:
+        raise ValueError(f"PointNet checkpoint {pointnet_path} (sha256 {digest[:12]}) is not the one this RN was "
+                         f"trained with (sha256 {model.pointnet_sha256[:12]})")
 
 
 def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds: list[int], n_points: int,
@@ -110,6 +127,7 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
     from prl.rn import load_rn
 
     model = load_rn(rn_path)
+    check_pointnet(model, pointnet_path)
     texts = list(load_plb().texts(task_name))
     pointnet = load_pointnet(pointnet_path)
     out: dict[str, list] = {}

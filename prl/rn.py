@@ -286,8 +286,9 @@ class RepresentationNetwork(nn.Module):
     """Table I: three Linear-BatchNorm1d-ReLU-Dropout blocks (512/256/128; p 0.5/0.5/0.4), then
     ``Linear(128, sum(dims))``. Inputs are standardised by the ``x_mean``/``x_std`` buffers (set from
     the training set by :func:`train_rn`; identity until then) before the first layer. ``config`` and
-    ``layout`` are set by :func:`train_rn` / :func:`load_rn` (``None`` on a bare network), and so is
-    ``plan_libraries`` by :func:`load_rn` when the checkpoint holds them."""
+    ``layout`` are set by :func:`train_rn` / :func:`load_rn` (``None`` on a bare network); the caller sets
+    ``plan_libraries``, ``plan_priors`` and ``pointnet_sha256``, which :func:`save_rn` stores and
+    :func:`load_rn` restores."""
 
     def __init__(self, in_dim: int, dims: Sequence[int] = RS_DIMS) -> None:
         super().__init__()
@@ -311,6 +312,11 @@ class RepresentationNetwork(nn.Module):
         self.plan_libraries: dict[str, np.ndarray] = {}
         """Per task, the (K, n) demonstrated plans for :func:`library_plan` decoding (set by the caller with
         :func:`plan_libraries`; saved with the model)."""
+        self.plan_priors: dict[str, tuple[np.ndarray, ...]] = {}
+        """Per task, the per-dimension probabilities the demos' plans were sampled with (``library_plan``'s
+        ``prior``), kept with the model so a later change of the catalogue does not change its decoding."""
+        self.pointnet_sha256: str | None = None
+        """SHA-256 of the PointNet checkpoint whose features the model was trained on (``None``: unknown)."""
 
     def set_standardisation(self, mean: np.ndarray | Tensor, std: np.ndarray | Tensor) -> None:
         """Set the input standardisation ``(x - mean) / std`` (std entries below ``STD_FLOOR`` -> 1)."""
@@ -533,18 +539,28 @@ def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.n
     learns p(plan | scene, success), which by Bayes is proportional to prior(plan) * P(success | plan,
     scene). Dividing by the prior ranks plans by their success probability instead of by how often
     the sampler tried them."""
-    n = len(probs)
-    lib = check_library(library, [p.shape[1] for p in probs])
-    if prior is not None:
-        if len(prior) != n or any(np.shape(q) != (p.shape[1],) or np.any(np.asarray(q) <= 0)
-                                  for q, p in zip(prior, probs)):
-            raise ValueError(f"prior must give {n} dimensions of positive probabilities of sizes "
-                             f"{[p.shape[1] for p in probs]}, got sizes {[np.shape(q) for q in prior]}")
+    dims = [p.shape[1] for p in probs]
+    lib = check_library(library, dims)
     # (N, K) scores; the floor keeps log finite where a probability underflows to 0
     score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))
     if prior is not None:
-        score = score - sum(np.log(np.asarray(q, dtype=float))[lib[:, i]] for i, q in enumerate(prior))
+        score = score - sum(np.log(q)[lib[:, i]] for i, q in enumerate(check_prior(prior, dims)))
     return lib[np.argmax(score, axis=1)]
+
+
+def check_prior(prior: Any, dims: Sequence[int], what: str = "prior") -> tuple[np.ndarray, ...]:
+    """``prior`` as one float (m_i,) array per dimension of ``dims``, each of positive probabilities summing
+    to 1; else ValueError naming the sizes, or the dimension and its bad values (``what`` starts it)."""
+    sizes = [np.shape(q) for q in prior] if isinstance(prior, Sequence) else np.shape(prior)
+    if not isinstance(prior, Sequence) or len(prior) != len(dims) or any(
+            np.shape(q) != (m,) for q, m in zip(prior, dims)):
+        raise ValueError(f"{what} must give {len(dims)} dimensions of positive probabilities of sizes "
+                         f"{list(dims)}, got sizes {sizes}")
+    out = tuple(np.asarray(q, dtype=float) for q in prior)
+    for i, q in enumerate(out):
+        if not np.all(q > 0) or abs(q.sum() - 1.0) > 1e-6:
+            raise ValueError(f"{what} dimension {i} must be positive probabilities summing to 1, got {q.tolist()}")
+    return out
 
 
 def check_library(library: Any, dims: Sequence[int], what: str = "plan library") -> np.ndarray:
@@ -649,21 +665,23 @@ def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0) -> list[Dimens
 
 
 def save_rn(model: RepresentationNetwork, cfg: RNConfig, layout: FeatureLayout, path: str | Path) -> Path:
-    """Write the model, its config, its input layout and its ``plan_libraries`` to ``path`` (torch file);
-    return the path."""
+    """Write the model, its config, its input layout, its ``plan_libraries``, ``plan_priors`` and
+    ``pointnet_sha256`` to ``path`` (torch file); return the path."""
     if layout.dim != model.in_dim:
         raise ValueError(f"layout length {layout.dim} ({layout.describe()}) does not match the model's "
                          f"input length {model.in_dim}")
     if tuple(cfg.dims) != model.dims:
         raise ValueError(f"cfg.dims {cfg.dims} does not match the model's dims {model.dims}")
-    libraries: dict[str, list[list[int]]] = {}
-    for task, lib in model.plan_libraries.items():
-        libraries[str(task)] = check_library(lib, model.dims, f"plan library of task {task!r}").tolist()
+    libraries = {str(task): check_library(lib, model.dims, f"plan library of task {task!r}").tolist()
+                 for task, lib in model.plan_libraries.items()}
+    priors = {str(task): [q.tolist() for q in check_prior(prior, model.dims, f"plan prior of task {task!r}")]
+              for task, prior in model.plan_priors.items()}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cfg_dict = asdict(cfg) | {"dims": list(cfg.dims)}
     payload = {"format": CHECKPOINT_FORMAT, "in_dim": model.in_dim, "dims": list(model.dims),
-               "config": cfg_dict, "layout": layout.to_json(), "plan_libraries": libraries,
+               "config": cfg_dict, "layout": layout.to_json(), "plan_libraries": libraries, "plan_priors": priors,
+               "pointnet_sha256": model.pointnet_sha256,
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}}
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
@@ -697,5 +715,8 @@ def load_rn(path: str | Path, expected_layout: FeatureLayout | None = None) -> R
     model.config, model.layout = cfg, layout
     model.plan_libraries = {t: np.asarray(lib, dtype=np.int64)
                             for t, lib in (payload.get("plan_libraries") or {}).items()}
+    model.plan_priors = {t: tuple(np.asarray(q, dtype=float) for q in prior)
+                         for t, prior in (payload.get("plan_priors") or {}).items()}
+    model.pointnet_sha256 = payload.get("pointnet_sha256")
     model.eval()
     return model

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import subprocess
+from pathlib import Path
 
 from prl.constants import REPO_ROOT
 
@@ -32,6 +33,18 @@ def source_version(*relative_paths: str) -> str:
         h.update(rel.encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
+
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 (hex) of one file's bytes; FileNotFoundError names a missing file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def git_commit() -> str:

@@ -21,10 +21,10 @@ pytest.importorskip("lerobot")
 
 from prl.constants import N_JOINTS, N_SENSORS
 from prl.export import (
+    EXPORT_KEY_FILE,
     FEATURES,
     NO_LABEL,
     ExportError,
-    EXPORT_KEY_FILE,
     episode_frames,
     export_key,
     export_lerobot,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -12,11 +13,11 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _pipeline(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+def _pipeline(tmp_path: Path, *args: str, module: str = "flows.full_pipeline") -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env.update({"MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}", "PREFECT_HOME": str(tmp_path / "prefect"),
                 "PREFECT_SERVER_ANALYTICS_ENABLED": "false", "XDG_RUNTIME_DIR": env.get("XDG_RUNTIME_DIR", "/tmp")})
-    return subprocess.run([sys.executable, "-m", "flows.full_pipeline", *args], cwd=REPO, env=env,
+    return subprocess.run([sys.executable, "-m", module, *args], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=900, check=False)
 
 
@@ -78,4 +79,25 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     for split in ("train_ranges", "wide_ranges"):
         for kind in ("rn", "rn_library", "rn_success", "prior", "expert"):
             assert ev[f"metrics.hammer/{split}/{kind}_success_rate"] in (0.0, 1.0)
+            # one scene: the Wilson interval of 0/1 is [0, .79], of 1/1 [.21, 1]
+            assert ev[f"metrics.hammer/{split}/{kind}_ci95_high"] - ev[f"metrics.hammer/{split}/{kind}_ci95_low"] \
+                == pytest.approx(0.7935, abs=1e-3)
     assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1
+
+    # the saved checkpoint, evaluated on its own by flows.evaluate_rn on the pipeline's first eval scene,
+    # finds its PointNet by digest and reproduces the pipeline's plans and outcomes exactly
+    res = _pipeline(tmp_path, "--rn", str(tmp_path / "out" / "models" / "rn-seed0.pt"), "--first-seed", "10000000",
+                    "--scenes", "1", "--decodings", "rn,rn_library", module="flows.evaluate_rn")
+    assert res.returncode == 0, res.stderr[-3000:]
+    runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.mlflow.runName = 'rn-eval'")
+    alone = runs[runs["tags.mlflow.parentRunId"].isna()].iloc[0]
+    assert alone["params.first_seed"] == "10000000" and alone["params.decodings"] == "rn,rn_library"
+    assert alone["params.pointnet_path"].endswith(".pt") and "pointnet-" in alone["params.pointnet_path"]
+    name = "hammer_train_ranges_rn_eval.json"
+    before = json.loads(Path(mlflow.artifacts.download_artifacts(run_id=ev["run_id"], artifact_path=name,
+                                                                 dst_path=str(tmp_path / "a"))).read_text())
+    after = json.loads(Path(mlflow.artifacts.download_artifacts(run_id=alone["run_id"], artifact_path=name,
+                                                                dst_path=str(tmp_path / "b"))).read_text())
+    assert set(after) == {"rn", "rn_library", "prior", "expert"}
+    for kind in after:
+        assert after[kind] == before[kind], kind

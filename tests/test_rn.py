@@ -315,6 +315,16 @@ def test_save_load_round_trip_and_layout_mismatch(tmp_path: Path) -> None:
     assert np.array_equal(again.plan_libraries["b"], plan_library(y[1:6:2]))
     assert np.array_equal(predict_plan(again, x, again.plan_libraries["a"]),
                           predict_plan(model, x, model.plan_libraries["a"]))
+    # the sampling prior and the PointNet digest travel with the model
+    model.plan_priors = {"a": (np.array([0.5, 0.25, 0.25]), np.full(4, 0.25))}
+    model.pointnet_sha256 = "ab" * 32
+    again = load_rn(save_rn(model, cfg, layout, tmp_path / "prior.pt"))
+    assert [q.tolist() for q in again.plan_priors["a"]] == [[0.5, 0.25, 0.25], [0.25] * 4]
+    assert again.pointnet_sha256 == "ab" * 32 and loaded.plan_priors == {} and loaded.pointnet_sha256 is None
+    model.plan_priors = {"a": (np.array([0.5, 0.5, 0.5]), np.full(4, 0.25))}
+    with pytest.raises(ValueError, match=r"plan prior of task 'a' dimension 0 must be positive probabilities"):
+        save_rn(model, cfg, layout, tmp_path / "badprior.pt")
+    model.plan_priors = {}
     model.plan_libraries = {"a": np.array([[0, 4]])}  # dimension 1 has 4 choices
     with pytest.raises(ValueError, match=r"plan library of task 'a' row 0 has choice 4 for dimension 1, which has 4 choices"):
         save_rn(model, cfg, layout, tmp_path / "badlib.pt")
@@ -351,8 +361,13 @@ def test_library_plan_hand_computed() -> None:
     assert library_plan(probs, library, prior).tolist()[0] == [1, 1]
     # sample 1: .09/.4 = .225, .01/.05 = .2, .08/.05 = 1.6 -> (2, 1)
     assert library_plan(probs, library, prior).tolist()[1] == [2, 1]
-    with pytest.raises(ValueError, match="positive probabilities of sizes"):
+    with pytest.raises(ValueError, match=r"prior dimension 0 must be positive probabilities summing to 1, "
+                                         r"got \[0.5, 0.5, 0.0\]"):
         library_plan(probs, library, [np.array([0.5, 0.5, 0.0]), np.array([0.8, 0.2])])
+    with pytest.raises(ValueError, match=r"prior dimension 1 .* got \[0.8, 0.3\]"):
+        library_plan(probs, library, [np.array([0.5, 0.25, 0.25]), np.array([0.8, 0.3])])
+    with pytest.raises(ValueError, match=r"sizes \[3, 2\], got sizes \[\(3,\)\]"):
+        library_plan(probs, library, [np.array([0.5, 0.25, 0.25])])
     with pytest.raises(ValueError, match="needs a plan library"):
         predict_plan(RepresentationNetwork(4, (3, 2)), np.zeros((1, 4)), prior=prior)
     # a zero probability does not make every score -inf
@@ -423,5 +438,27 @@ def test_pipeline_decodings_resolve_or_name_what_is_missing() -> None:
     model.plan_libraries = {"hammer": np.array([[0, 3, 3, 0, 0, 1]])}
     library, prior = decoding(model, "hammer", "rn_library")
     assert library.tolist() == [[0, 3, 3, 0, 0, 1]] and prior is None
-    library, prior = decoding(model, "hammer", "rn_success")
+    library, prior = decoding(model, "hammer", "rn_success")  # no stored prior: the catalogue's
     assert [p.tolist() for p in prior] == [p.tolist() for p in load_plb().prior("hammer")]
+    stored = tuple(np.full(m, 1.0 / m) for m in RS_DIMS)
+    model.plan_priors = {"hammer": stored}  # the prior the demos were sampled with wins over the catalogue
+    assert decoding(model, "hammer", "rn_success")[1] is stored
+
+
+def test_pointnet_digest_is_checked(tmp_path: Path) -> None:
+    import hashlib
+
+    from flows.train_rn import check_pointnet
+    from prl.version import file_digest
+
+    model = RepresentationNetwork(4)
+    (tmp_path / "pn.pt").write_bytes(b"pointnet")
+    (tmp_path / "other.pt").write_bytes(b"another pointnet")
+    check_pointnet(model, tmp_path / "other.pt")  # an RN that records none accepts any
+    model.pointnet_sha256 = file_digest(tmp_path / "pn.pt")
+    assert model.pointnet_sha256 == hashlib.sha256(b"pointnet").hexdigest()
+    check_pointnet(model, tmp_path / "pn.pt")
+    with pytest.raises(ValueError, match=r"other.pt \(sha256 [0-9a-f]{12}\) is not the one this RN was trained with"):
+        check_pointnet(model, tmp_path / "other.pt")
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        check_pointnet(model, tmp_path / "missing.pt")

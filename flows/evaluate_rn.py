@@ -1,0 +1,134 @@
+"""Evaluate a trained RN checkpoint in simulation on any range of unseen scenes, tracked in MLflow.
+
+The pipeline's ``rn-eval`` stage runs its model on one fixed range of scene seeds; this flow runs a saved
+checkpoint on another one (a confirmation set, more scenes, wider ranges) with the same policy code::
+
+    python -m flows.evaluate_rn --rn /tmp/rnrun/models/rn-seed0.pt --first-seed 10500000 --scenes 50
+
+The PointNet checkpoint is found beside the RN (``pointnet-*.pt`` whose SHA-256 the RN recorded), or given
+with ``--pointnet``. Each plan kind (the RN decodings and the 'prior' and 'expert' baselines) is logged as
+``<task>/<split>/<kind>_success_rate`` with its 95% Wilson interval, plus the per-scene outcomes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from prefect import flow
+
+from flows.train_rn import DECODINGS, check_pointnet, evaluate_in_sim
+from prl import tracking
+from prl.config import PipelineConfig
+
+
+def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]:
+    """Log one evaluation's outcomes (``evaluate_in_sim``'s result) to the active MLflow run and print them;
+    return the success rate per plan kind."""
+    import mlflow
+
+    from prl.stats import format_rate, wilson_interval
+
+    rates: dict[str, float] = {}
+    for kind, outs in out.items():
+        k, n = sum(bool(o.success) for o in outs), len(outs)
+        lo, hi = wilson_interval(k, n)
+        rates[kind] = k / n
+        mlflow.log_metrics({f"{task}/{split}/{kind}_success_rate": k / n,
+                            f"{task}/{split}/{kind}_ci95_low": lo, f"{task}/{split}/{kind}_ci95_high": hi})
+        print(f"{task} ({split}) {kind:<11} {format_rate(k, n)}")
+    mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure}
+                            for o in outs] for kind, outs in out.items()}, f"{task}_{split}_rn_eval.json")
+    return rates
+
+
+def find_pointnet(rn_path: Path, pointnet_path: Path | None) -> Path:
+    """``pointnet_path`` if given (checked against the SHA-256 the RN recorded, if any), else the
+    ``pointnet-*.pt`` beside ``rn_path`` with that SHA-256; a clear error when the RN records none, no file
+    beside it matches, or the given one is another PointNet."""
+    from prl.rn import load_rn
+    from prl.version import file_digest
+
+    model = load_rn(rn_path)
+    if pointnet_path is not None:
+        check_pointnet(model, Path(pointnet_path))
+        return Path(pointnet_path)
+    want = model.pointnet_sha256
+    if want is None:
+        raise ValueError(f"{rn_path} does not record its PointNet; pass --pointnet")
+    for candidate in sorted(Path(rn_path).parent.glob("pointnet-*.pt")):
+        if file_digest(candidate) == want:
+            return candidate
+    raise FileNotFoundError(f"no pointnet-*.pt beside {rn_path} has the sha256 the RN was trained with "
+                            f"({want[:12]}); pass --pointnet")
+
+
+def check_eval_args(task: str, scenes: int, first_seed: int, randomization: float, decodings: Sequence[str]) -> None:
+    """ValueError naming an unknown task or decoding, or a bad count, seed or randomisation scale."""
+    import envs  # noqa: F401  (registers the hand agent and the tasks)
+    from envs.tasks import task_class
+
+    task_class(task)
+    for kind in decodings:
+        if kind not in DECODINGS:
+            raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}")
+    if scenes < 1:
+        raise ValueError(f"scenes must be >= 1, got {scenes}")
+    if first_seed < 0:
+        raise ValueError(f"first_seed must be >= 0, got {first_seed}")
+    if not randomization >= 1.0:
+        raise ValueError(f"randomization must be a scale >= 1, got {randomization}")
+
+
+@flow(name="prl-rn-eval", log_prints=True)
+def evaluate_rn(rn_path: str, pointnet_path: str | None = None, task: str = "hammer", first_seed: int = 10_500_000,
+                scenes: int = 50, randomization: float = 1.0, decodings: Sequence[str] = DECODINGS,
+                frames: int = PipelineConfig.episode_frames, prior_seed: int = 31) -> dict[str, float]:
+    """Run the RN at ``rn_path`` (decoded each way of ``decodings``) and the two baselines on the scenes of
+    seeds ``first_seed .. first_seed + scenes - 1`` with ranges scaled by ``randomization``; one MLflow run
+    named ``rn-eval``. Returns the success rate per plan kind."""
+    from prl.pointnet import load_pointnet
+
+    check_eval_args(task, scenes, first_seed, randomization, decodings)
+    rn, pn = Path(rn_path), find_pointnet(Path(rn_path), None if pointnet_path is None else Path(pointnet_path))
+    n_points = load_pointnet(pn).cfg.n_points
+    seeds = list(range(first_seed, first_seed + scenes))
+    split = "train_ranges" if randomization == 1.0 else f"ranges_x{randomization:g}"
+    tracking.configure("prl")
+    params = {"rn_path": str(rn), "pointnet_path": str(pn), "task": task, "first_seed": first_seed, "scenes": scenes,
+              "randomization": randomization, "decodings": ",".join(decodings), "frames": frames}
+    with tracking.parent_run("rn-eval", params=params) as run:
+        out = evaluate_in_sim(rn, pn, task, seeds, n_points, frames, randomization, prior_seed, tuple(decodings))
+        rates = log_rn_eval(task, split, out)
+        print(f"MLflow run {run.info.run_id}")
+    return rates
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m flows.evaluate_rn", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rn", required=True, help="RN checkpoint (the pipeline's <output-dir>/models/rn-seed<N>.pt)")
+    parser.add_argument("--pointnet", default=None, help="PointNet checkpoint (default: the one beside the RN)")
+    parser.add_argument("--task", default="hammer")
+    parser.add_argument("--first-seed", type=int, default=10_500_000,
+                        help="first scene seed (the pipeline's own rn-eval uses 10,000,000 + 1,000 x seed)")
+    parser.add_argument("--scenes", type=int, default=50)
+    parser.add_argument("--randomization", type=float, default=1.0, help="scale of the randomisation ranges")
+    parser.add_argument("--decodings", default=",".join(DECODINGS), help="comma-separated RN decodings")
+    parser.add_argument("--frames", type=int, default=PipelineConfig.episode_frames)
+    args = parser.parse_args(argv)
+    decodings = tuple(d for d in args.decodings.split(",") if d)
+    try:
+        check_eval_args(args.task, args.scenes, args.first_seed, args.randomization, decodings)
+        find_pointnet(Path(args.rn), None if args.pointnet is None else Path(args.pointnet))
+    except (ValueError, FileNotFoundError, KeyError) as exc:  # before any flow run or MLflow run starts
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    evaluate_rn(args.rn, args.pointnet, args.task, args.first_seed, args.scenes, args.randomization,
+                decodings, args.frames)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
