@@ -105,7 +105,7 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
                                     out_dir / "rn_probabilities.png")
         mlflow.log_artifact(str(fig))
         model.plan_libraries = plan_libraries(y[train], [data["tasks"][i] for i in train])  # rn-eval's decodings
-        model.plan_priors = {t: plb.prior(t) for t in model.plan_libraries}  # the prior synthesis sampled from
+        model.plan_priors = {t: plb.prior(t) for t in model.plan_libraries}  # the catalogue prior that synthesis samples from
         model.pointnet_sha256 = file_digest(pn_path)
         mlflow.log_metrics({f"{t}/plan_library_size": len(lib) for t, lib in model.plan_libraries.items()})
         rn_path = save_rn(model, rn_cfg, FEATURE_LAYOUT, models_dir / f"rn-seed{cfg.seed}.pt")
