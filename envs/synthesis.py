@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,6 +119,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     attempt = len(rows)
     plb = load_plb()
     env = executor = None
+    cleanup = ExitStack()
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -134,9 +136,10 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
             else:
                 if env is None:
                     from envs.executor import ExecutorConfig, PlanExecutor
-                    from envs.tasks import make_env
+                    from envs.tasks import fast_resets, make_env
 
                     env = make_env(spec.task)
+                    cleanup.enter_context(fast_resets())
                     executor = PlanExecutor(env, ExecutorConfig(n_frames=spec.n_frames))
                 rng = np.random.default_rng(plan_seed)
                 plan = plb.sample_plan(spec.task, rng)
@@ -158,6 +161,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
             bar.close()
         if env is not None:
             env.close()
+        cleanup.close()
     demos = tuple(sorted(spec.dir.glob("ep*.npz")))
     return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos)
 

@@ -64,22 +64,23 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
     ``randomization`` scales the task's randomisation ranges (1: the training ranges).
     """
     from envs.executor import ExecutorConfig, PlanExecutor
-    from envs.tasks import make_env
+    from envs.tasks import fast_resets, make_env
 
     env = make_env(task, randomization=randomization)
     try:
-        executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames))
-        key = env.unwrapped.measure_key
-        out: list[TrialOutcome] = []
-        bar = tqdm(list(seeds), desc=desc or f"{task} trials", disable=not progress, unit="plan")
-        for i, seed in enumerate(bar):
-            x_manip = executor.observe(seed=int(seed))
-            result = executor.run(policy(i, env.unwrapped, x_manip))
-            out.append(TrialOutcome(task=task, seed=int(seed), plan=tuple(int(v) for v in result.plan),
-                                    success=bool(result.success), measure=float(result.outcome[key]),
-                                    fail=bool(result.outcome.get("fail", False))))
-            bar.set_postfix(success_rate=f"{np.mean([o.success for o in out]):.2f}")
-        return out
+        with fast_resets():
+            executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames))
+            key = env.unwrapped.measure_key
+            out: list[TrialOutcome] = []
+            bar = tqdm(list(seeds), desc=desc or f"{task} trials", disable=not progress, unit="plan")
+            for i, seed in enumerate(bar):
+                x_manip = executor.observe(seed=int(seed))
+                result = executor.run(policy(i, env.unwrapped, x_manip))
+                out.append(TrialOutcome(task=task, seed=int(seed), plan=tuple(int(v) for v in result.plan),
+                                        success=bool(result.success), measure=float(result.outcome[key]),
+                                        fail=bool(result.outcome.get("fail", False))))
+                bar.set_postfix(success_rate=f"{np.mean([o.success for o in out]):.2f}")
+            return out
     finally:
         env.close()
 

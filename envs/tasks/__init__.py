@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import gc
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import gymnasium as gym
@@ -47,4 +50,22 @@ def make_env(task: str, **kwargs: Any) -> gym.Env:
     return gym.make(TASK_ENV_IDS[task], **(defaults | kwargs))
 
 
-__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "make_env", "task_class"]
+@contextmanager
+def fast_resets() -> Iterator[None]:
+    """Make scene rebuilds cheap for the duration of the block (many resets of one env).
+
+    Every reset rebuilds the randomised scene, and ManiSkill then runs a full ``gc.collect()``,
+    which walks every object torch and mani_skill created on import: 0.14 s of a 0.81 s hammer
+    attempt here. ``gc.freeze()`` moves the objects alive on entry out of the collector's reach
+    (they stay alive; what the block creates is collected as before), so a reset took 0.024 s,
+    with identical outcomes (20 attempts, 2026-11-30). Everything is unfrozen on exit; do not nest.
+    """
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "fast_resets", "make_env", "task_class"]
