@@ -2,9 +2,12 @@
 
 Both runs synthesise the same shards (same run seed, so the very same attempts) through the
 real path (Prefect subflow on a fresh Dask ``LocalCluster``, worker start-up included) into
-fresh directories; the ratio of their rates is the parallel speed-up. Then the paper profile's
-wall time is extrapolated from the 2-worker rate. ``python -m bench.bench_synthesis [--demos 8]
-[--shards 4]``
+fresh directories; the ratio of their rates is the parallel speed-up. The same shards are also
+run bare, one after the other in this process (``run_shard``: no Prefect, no Dask), and each
+Dask run's worker-seconds per attempt are printed as a multiple of the bare seconds per attempt:
+the cost of the orchestration (1.0 = none; worker start-up and an unevenly ending last shard
+count against it). Then the paper profile's wall time is extrapolated from the 2-worker rate.
+``python -m bench.bench_synthesis [--demos 8] [--shards 4]``
 """
 
 from __future__ import annotations
@@ -25,6 +28,17 @@ def _run(workers: int, demos: int, shards: int, seed: int, out: Path) -> tuple[f
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
 
 
+def _run_bare(demos: int, shards: int, seed: int, out: Path) -> tuple[float, int, int]:
+    import envs  # noqa: F401  (registers the hand and the tasks)
+    from envs.synthesis import run_shard
+    from flows.synthesize import shard_specs
+
+    t0 = time.perf_counter()
+    results = [run_shard(spec) for spec in shard_specs(["hammer"], demos, seed, shards, out)]
+    wall = time.perf_counter() - t0
+    return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demos", type=int, default=8, help="successful demos per run")
@@ -35,10 +49,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, 2):
             rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}")
+        bare = _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare")
     print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}")
     print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
     for workers, (wall, demos, attempts) in rows.items():
         print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")
+    print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
+          f"{60 * bare[2] / bare[0]:>13.1f}")
+    bare_per_attempt = bare[0] / bare[2]
+    for workers, (wall, _, attempts) in rows.items():
+        print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
     speedup = rows[1][0] / rows[2][0]
     print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {rows[1][2] == rows[2][2]})")
     per_min = 60 * rows[2][1] / rows[2][0]

@@ -85,3 +85,60 @@ def test_killed_shard_resumes_without_loss_or_duplicates(tmp_path: Path) -> None
     assert load_demo(resumed.demo_paths[-1]).success
     assert not list(shard.glob(".*.tmp"))
     json.dumps(_rows(out))
+
+
+def test_fast_resets_freezes_the_heap_and_always_unfreezes() -> None:
+    import gc
+
+    from envs.tasks import fast_resets
+
+    with fast_resets():
+        assert gc.get_freeze_count() > 1000  # torch, mani_skill, pytest: far more than a few objects
+        frozen = gc.get_freeze_count()
+        with pytest.raises(RuntimeError, match="boom"), fast_resets():
+            raise RuntimeError("boom")
+        assert gc.get_freeze_count() == frozen  # the inner block left the outer one's freeze alone
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(KeyError), fast_resets():
+        raise KeyError("x")
+    assert gc.get_freeze_count() == 0
+
+
+def test_worker_env_passes_a_set_api_url_on() -> None:
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    from flows.synthesize import worker_env
+
+    with temporary_settings({PREFECT_API_URL: "http://10.1.2.3:4200/api/"}):
+        assert worker_env() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api"}
+
+
+def _worker_api_url() -> str:
+    from prefect.client.orchestration import get_client
+
+    with get_client(sync_client=True) as client:
+        return str(client.api_url).rstrip("/")
+
+
+@pytest.mark.sim
+def test_local_dask_workers_report_to_this_process_api() -> None:
+    """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own."""
+    import httpx
+    from prefect import flow, task
+    from prefect.settings import PREFECT_API_URL
+
+    from flows.synthesize import make_task_runner
+
+    if PREFECT_API_URL.value():
+        pytest.skip(f"PREFECT_API_URL is set ({PREFECT_API_URL.value()}): no temporary server to share")
+    worker_task = task(_worker_api_url, name="worker-api-url")
+
+    @flow(task_runner=make_task_runner(2, None))
+    def probe() -> list[str]:
+        return [f.result() for f in [worker_task.submit(), worker_task.submit()]]
+
+    urls = probe()
+    here = _worker_api_url()
+    assert urls == [here, here]
+    assert here.startswith("http://127.0.0.1:")
+    assert httpx.get(here + "/health", timeout=10).status_code == 200
