@@ -73,7 +73,8 @@ def check_eval_args(task: str, scenes: int, first_seed: int, randomization: floa
     task_class(task)
     for kind in decodings:
         if kind not in DECODINGS:
-            raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}")
+            hint = " ('prior' and 'expert' are baselines, always run)" if kind in ("prior", "expert") else ""
+            raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}{hint}")
     if scenes < 1:
         raise ValueError(f"scenes must be >= 1, got {scenes}")
     if first_seed < 0:

@@ -16,6 +16,8 @@ from prl.version import file_digest
 @pytest.mark.parametrize(("args", "match"), [
     (("hamer", 5, 0, 1.0, ("rn",)), "unknown task 'hamer'"),
     (("hammer", 5, 0, 1.0, ("rn", "greedy")), "unknown RN decoding 'greedy'; known: rn, rn_library, rn_success"),
+    (("hammer", 5, 0, 1.0, ("rn", "prior")),
+     r"unknown RN decoding 'prior'; known: rn, rn_library, rn_success \('prior' and 'expert' are baselines, always run\)"),
     (("hammer", 0, 0, 1.0, ("rn",)), "scenes must be >= 1, got 0"),
     (("hammer", 5, -3, 1.0, ("rn",)), "first_seed must be >= 0, got -3"),
     (("hammer", 5, 0, 0.5, ("rn",)), "randomization must be a scale >= 1, got 0.5"),
