@@ -139,6 +139,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                     from envs.tasks import fast_resets, make_env
 
                     env = make_env(spec.task)
+                    cleanup.callback(env.close)
                     cleanup.enter_context(fast_resets())
                     executor = PlanExecutor(env, ExecutorConfig(n_frames=spec.n_frames))
                 rng = np.random.default_rng(plan_seed)
@@ -159,8 +160,6 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     finally:
         if bar is not None:
             bar.close()
-        if env is not None:
-            env.close()
         cleanup.close()
     demos = tuple(sorted(spec.dir.glob("ep*.npz")))
     return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos)

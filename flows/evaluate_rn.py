@@ -19,7 +19,7 @@ from pathlib import Path
 
 from prefect import flow
 
-from flows.train_rn import DECODINGS, check_pointnet, evaluate_in_sim
+from flows.train_rn import BASELINES, DECODINGS, check_pointnet, evaluate_in_sim
 from prl import tracking
 from prl.config import PipelineConfig
 
@@ -73,7 +73,7 @@ def check_eval_args(task: str, scenes: int, first_seed: int, randomization: floa
     task_class(task)
     for kind in decodings:
         if kind not in DECODINGS:
-            hint = " ('prior' and 'expert' are baselines, always run)" if kind in ("prior", "expert") else ""
+            hint = f" ({' and '.join(map(repr, BASELINES))} are baselines, always run)" if kind in BASELINES else ""
             raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}{hint}")
     if scenes < 1:
         raise ValueError(f"scenes must be >= 1, got {scenes}")

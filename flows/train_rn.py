@@ -59,6 +59,8 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
 #: plans, 'rn_success' the same divided by the sampling prior (ranks by success probability); see
 #: ``prl.rn.library_plan``.
 DECODINGS: tuple[str, ...] = ("rn", "rn_library", "rn_success")
+#: Plan kinds run next to the RN decodings on the same scenes: a plan sampled from the task prior, the expert plan.
+BASELINES: tuple[str, ...] = ("prior", "expert")
 
 
 def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, tuple[np.ndarray, ...] | None]:
@@ -135,7 +137,7 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
         policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, kind)
         out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
                                desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
-    for kind, plan_seed in (("prior", prior_seed), ("expert", 0)):
+    for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True):
         out[kind] = run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds,
                                n_frames=n_frames, randomization=randomization)
     return out
