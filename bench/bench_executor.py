@@ -56,7 +56,7 @@ def _peak_rss_gb() -> float:
 def _lift_end_frame(executor: Any) -> int:
     from envs.executor import STAGES
 
-    frames = executor.config.stage_frames()
+    frames = type(executor.env).stages.stage_frames(executor.config.n_frames)
     return int(np.sum(frames[: STAGES.index("lift") + 1]))
 
 

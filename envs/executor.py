@@ -38,18 +38,72 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from prl.constants import JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS
+from prl.constants import EPISODE_SECONDS, JOINT_NAMES, N_ANCHORS, N_JOINTS, N_SENSORS, RECORD_HZ
 from prl.demo import X_MANIP_DIM, X_MANIP_LAYOUT, X_MANIP_SAMPLES, x_manip_from_samples
 from prl.geometry import rot_x, rot_z
 from prl.labels import tool_object_axis
 
-STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
-"""Stage names; ``EpisodeResult.stage`` holds indices into this tuple."""
+STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion", "post_lift")
+"""Every stage the executor knows, in execution order; ``EpisodeResult.stage`` holds indices into this
+tuple. A task runs the subsequence its ``StageSpec`` declares (the others get 0 frames)."""
+
+REQUIRED_STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "motion")
+"""Stages every task runs: a plan always grasps its tool and performs its kinematic motion."""
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """What a task needs from the generic executor, declared as data on the task class (``stages``).
+
+    The executor has no per-task branches: which post-grasp stages run, where T_fv meets the object
+    and what follows the motion all come from here.
+    """
+
+    shares: tuple[tuple[str, float], ...]
+    """(stage, share of the episode's frames) for each stage the task runs, in ``STAGES`` order.
+    Stages not listed are skipped. Without ``lift``/``transport``/``place`` the tool stays where it
+    was grasped (a cap on its bottle) and the motion starts from the grasp."""
+    fv_approach: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """Unit direction, in the object's frame, from which T_fv's leading face comes onto the object at
+    the end of ``place`` (the hammer's head: from above, the object's +Z)."""
+    post_lift_height: float = 0.0
+    """Lift (m) of the hand in ``post_lift``, after the motion (tweezers carrying the cube up)."""
+
+    def __post_init__(self) -> None:
+        names = [name for name, _ in self.shares]
+        unknown = [n for n in names if n not in STAGES]
+        if unknown:
+            raise ValueError(f"unknown stage(s) {unknown}; known: {list(STAGES)}")
+        if names != sorted(names, key=STAGES.index) or len(set(names)) != len(names):
+            raise ValueError(f"stages must be listed once each in execution order {list(STAGES)}, got {names}")
+        missing = [n for n in REQUIRED_STAGES if n not in names]
+        if missing:
+            raise ValueError(f"every task runs {list(REQUIRED_STAGES)}; missing {missing}")
+        if "place" in names and "transport" not in names:
+            raise ValueError("stage 'place' needs 'transport' (the place pose is planned when the transport starts)")
+        bad = [(n, v) for n, v in self.shares if not (isinstance(v, (int, float)) and v > 0)]
+        if bad:
+            raise ValueError(f"stage shares must be positive numbers, got {bad}")
+        if ("post_lift" in names) != (self.post_lift_height > 0):
+            raise ValueError(f"post_lift_height must be > 0 exactly when 'post_lift' runs, got {self.post_lift_height!r}")
+        if abs(float(np.linalg.norm(self.fv_approach)) - 1.0) > 1e-6:
+            raise ValueError(f"fv_approach must be a unit vector, got {self.fv_approach!r}")
+
+    def runs(self, stage: str) -> bool:
+        """Whether the task runs ``stage``."""
+        return any(name == stage for name, _ in self.shares)
+
+    def stage_frames(self, n_frames: int) -> np.ndarray:
+        """Frames per stage, ``STAGES`` order (0 for stages not run), summing to ``n_frames``."""
+        share = dict(self.shares)
+        f = np.array([share.get(name, 0.0) for name in STAGES], dtype=np.float64)
+        bounds = np.round(np.cumsum(f / f.sum()) * n_frames).astype(int)
+        return np.diff(np.concatenate([[0], bounds]))
 
 _J = {name: i for i, name in enumerate(JOINT_NAMES)}
 FINGER = slice(8, 30)
@@ -70,28 +124,80 @@ def _four(j3: float, j2: float, j1: float, j4: float = 0.0, lfj5: float = 0.0) -
     return out
 
 
-#: Finger postures (22 values, JOINT_NAMES[8:] order) per grasp pattern: (open pre-shape, closed).
-#: Closed targets lie beyond the handle, so the drives keep squeezing after contact.
-GRASP_POSTURES: dict[str, tuple[np.ndarray, np.ndarray]] = {
-    "medium_wrap": (
-        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
-        _posture(**_four(1.3, 1.4, 1.2, lfj5=0.3), THJ5=0.6, THJ4=1.2, THJ3=0.2, THJ2=0.6, THJ1=1.2),
+@dataclass(frozen=True)
+class GraspPosture:
+    """How the hand takes one grasp pattern: finger targets, closing order and how close the palm comes."""
+
+    open: np.ndarray
+    """(22,) finger targets (``JOINT_NAMES[8:]`` order) of the pre-shape, held from the pre-grasp on."""
+    closed: np.ndarray
+    """(22,) finger targets at the end of the grasp; they lie past the object, so the PD drives keep
+    pressing the phalanges on it and the tool is held by contact and friction only."""
+    gap: float
+    """Anchor distance (m) from T_gv's surface along the palm normal at the end of the approach
+    (<= 0: the palm is pressed onto the tool, as in a power grasp)."""
+    closing: tuple[tuple[str, float, float], ...] = ()
+    """(joint group, start, end): the part of the grasp stage over which that group's targets ramp
+    (others: the whole stage). Groups: "J4".."J1" of the four fingers (LFJ5 goes with "J3"), "TH" the
+    thumb."""
+
+    def windows(self) -> tuple[np.ndarray, np.ndarray]:
+        """(start, end) fractions of the grasp stage per joint, (30,) each, ``JOINT_NAMES`` order."""
+        start, end = np.zeros(N_JOINTS), np.ones(N_JOINTS)
+        for group, a, b in self.closing:
+            if not 0.0 <= a < b <= 1.0:
+                raise ValueError(f"closing window of {group} must satisfy 0 <= start < end <= 1, got {(a, b)}")
+            for i in range(FINGER.start, N_JOINTS):
+                name = JOINT_NAMES[i]
+                thumb = name.startswith("TH")
+                if (group == "TH" and thumb) or (not thumb and (name[2:] == group or (group == "J3" and name == "LFJ5"))):
+                    start[i], end[i] = a, b
+        return start, end
+
+
+#: The grasp posture of each catalogue pattern (``assets/plb.yaml`` ``grasp_patterns``). Each one, closed
+#: on the kind of object it is meant for, touches the sensors its catalogue vector lists (checked on the
+#: reference objects of ``envs/tasks/grasp_probe.py`` by ``tests/test_grasp_patterns.py``).
+GRASP_POSTURES: dict[str, GraspPosture] = {
+    # power grasp: the thumb is first turned down towards the wrist, out of the palm plane (lying in it, it
+    # sticks 8 mm out of the palm face and held the handle off the palm), the palm is pressed onto the
+    # handle, the knuckles flex, then the middle and last joints curl the fingertips in behind it and the
+    # thumb closes under it. Contacts: the palm (or, with the handle under the knuckles, the proximal
+    # phalanges) and the fingertips; the 3.2 cm handle fits inside the finger loop without touching the
+    # middle phalanges (catalogue note in assets/plb.yaml).
+    "medium_wrap": GraspPosture(
+        open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
+        closed=_posture(**_four(1.57, 1.57, 1.57), THJ5=0.6, THJ4=1.2, THJ2=0.6, THJ1=1.2),
+        gap=-0.002,
+        closing=(("J3", 0.0, 0.4), ("J2", 0.3, 0.8), ("J1", 0.3, 0.8), ("TH", 0.5, 1.0)),
     ),
-    "parallel_extension": (
-        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
-        _posture(**_four(1.5, 0.0, 0.0), THJ5=0.6, THJ4=1.2, THJ3=0.0, THJ2=0.0, THJ1=0.0),
+    # flat fingers: the knuckles flex to 90 deg with the middle joints only slightly bent, so the middle
+    # and distal pads lie on the face; then the thumb swings in from the wrist side against the other face.
+    "parallel_extension": GraspPosture(
+        open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
+        closed=_posture(**_four(1.57, 0.4, 0.0), THJ5=0.6, THJ4=1.2),
+        gap=0.015,
+        closing=(("J3", 0.0, 0.4), ("J2", 0.0, 0.4), ("TH", 0.4, 1.0)),
     ),
-    "palmar_pinch": (
-        _posture(**_four(0.0, 0.0, 0.0), THJ5=0.6, THJ4=0.0),
-        _posture(FFJ3=1.1, FFJ2=0.9, FFJ1=0.6, THJ5=0.9, THJ4=1.2, THJ3=0.2, THJ2=0.3, THJ1=0.6),
+    # index and thumb only: the index curls its pad down onto the object, the thumb swings in from the
+    # wrist side under it; the object hangs a few cm below the palm (large gap), clear of the palm.
+    "palmar_pinch": GraspPosture(
+        open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
+        closed=_posture(FFJ3=1.3, FFJ2=1.3, FFJ1=0.9, THJ5=1.0, THJ4=1.2, THJ2=0.4, THJ1=0.6),
+        gap=0.05,
+        closing=(("J3", 0.0, 0.6), ("J2", 0.0, 0.6), ("J1", 0.0, 0.6), ("TH", 0.3, 1.0)),
     ),
-    "precision_disk": (
-        _posture(**_four(0.0, 0.0, 0.0, j4=0.0), THJ5=0.6, THJ4=0.0),
-        _posture(FFJ4=-0.3, MFJ4=-0.1, RFJ4=-0.1, LFJ4=-0.3, **{k: v for k, v in _four(0.9, 1.0, 1.0).items()
-                                                              if not k.endswith("J4")},
-                 THJ5=0.9, THJ4=1.2, THJ3=0.2, THJ2=0.3, THJ1=0.9),
+    # fingertips spread round a disk below the palm, the thumb opposing them from the wrist side
+    "precision_disk": GraspPosture(
+        open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
+        closed=_posture(FFJ4=-0.3, MFJ4=-0.1, RFJ4=-0.1, LFJ4=-0.3,
+                        **{k: v for k, v in _four(1.2, 1.2, 0.9).items() if not k.endswith("J4")},
+                        THJ5=1.0, THJ4=1.2, THJ2=0.4, THJ1=0.6),
+        gap=0.045,
+        closing=(("TH", 0.3, 1.0),),
     ),
 }
+
 
 #: Amplitude of each kinematic motion along its catalogue template (``assets/plb.yaml``
 #: ``motion_templates``, the "+" one): rad for joint rotations, m for arm translations. The sign
@@ -108,47 +214,61 @@ MOTION_OVERSHOOT = 0.6
 
 @dataclass(frozen=True)
 class ExecutorConfig:
-    """How a plan is executed."""
+    """How a plan is executed. Durations are in seconds; frame counts left at None follow from them at the
+    task's physics rate when a ``PlanExecutor`` is made (its ``config`` holds the resolved numbers)."""
 
-    n_frames: int = 1500
-    """Physics frames per plan episode (paper: 1500)."""
-    record_every: int = 5
-    """Record one frame every this many physics frames (100 Hz at 500 Hz physics)."""
-    stage_fractions: tuple[float, ...] = (0.17, 0.07, 0.10, 0.10, 0.18, 0.08, 0.30)
-    """Share of ``n_frames`` per stage (``STAGES`` order); normalised to sum to 1."""
+    n_frames: int | None = None
+    """Physics frames per plan episode; None: ``episode_s`` at the task's physics rate (``EPISODE_FRAMES``
+    at the pipeline's ``SIM_FREQ``). The paper's "1500 frames" is an Isaac Sim count with an unstated step;
+    what is kept is the simulated duration."""
+    episode_s: float = EPISODE_SECONDS
+    """Simulated duration of a plan episode (s) when ``n_frames`` is None."""
+    record_every: int | None = None
+    """Record one frame every this many physics frames; None: ``RECORD_HZ`` records per second."""
     pregrasp_clearance: float = 0.05
     """Anchor distance (m) from the handle surface along the palm normal before the approach."""
-    contact_gap: float = 0.006
-    """Anchor distance (m) from the handle surface at the end of the approach."""
     lift_height: float = 0.10
     """Lift (m) of the hand after grasping."""
     hover_height: float = 0.06
     """Height (m) above the place pose at the end of the transport."""
     strike_settle_frac: float = 0.15
     """Part of the motion stage spent holding still before the motion."""
-    strike_ramp_frames: int = 40
-    """Frames over which the motion's displacement is ramped (fast strike)."""
+    strike_ramp_frames: int | None = None
+    """Frames over which the motion's displacement is ramped (fast strike); None: ``strike_ramp_s``."""
+    strike_ramp_s: float = 0.08
     blowup_speed: float = 50.0
     """A tool or hand link faster than this (m/s) counts as a simulation blow-up."""
-    observe_frames: int = 40
+    observe_frames: int | None = None
     """Physics frames of the observation phase that precedes the plan (hand held at home, tool and
-    object settling); x_manip is sampled from it (see :meth:`PlanExecutor.observe`)."""
+    object settling; x_manip is sampled from it, see :meth:`PlanExecutor.observe`); None: ``observe_s``."""
+    observe_s: float = 0.08
 
     def __post_init__(self) -> None:
-        if self.n_frames < 100:
+        if self.n_frames is not None and self.n_frames < 100:
             raise ValueError(f"n_frames must be >= 100, got {self.n_frames!r}")
-        if self.observe_frames < X_MANIP_SAMPLES:
+        if self.observe_frames is not None and self.observe_frames < X_MANIP_SAMPLES:
             raise ValueError(f"observe_frames must be >= {X_MANIP_SAMPLES}, got {self.observe_frames!r}")
-        if self.record_every < 1:
+        if self.record_every is not None and self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every!r}")
-        if len(self.stage_fractions) != len(STAGES) or min(self.stage_fractions) <= 0:
-            raise ValueError(f"stage_fractions must be {len(STAGES)} positive numbers, got {self.stage_fractions!r}")
+        for name in ("episode_s", "strike_ramp_s", "observe_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)!r}")
 
-    def stage_frames(self) -> np.ndarray:
-        """Frames per stage (ints summing to ``n_frames``)."""
-        f = np.asarray(self.stage_fractions, dtype=np.float64)
-        bounds = np.round(np.cumsum(f / f.sum()) * self.n_frames).astype(int)
-        return np.diff(np.concatenate([[0], bounds]))
+    def at_rate(self, sim_freq: float) -> ExecutorConfig:
+        """This config with every frame count fixed for a physics rate of ``sim_freq`` Hz."""
+        def frames(given: int | None, seconds: float) -> int:
+            return int(given) if given is not None else max(1, int(round(seconds * sim_freq)))
+
+        if self.record_every is None and sim_freq % RECORD_HZ:
+            raise ValueError(f"the physics rate {sim_freq} Hz is not a multiple of the recording rate {RECORD_HZ} Hz")
+
+        return replace(
+            self,
+            n_frames=frames(self.n_frames, self.episode_s),
+            record_every=frames(self.record_every, 1.0 / RECORD_HZ),
+            strike_ramp_frames=frames(self.strike_ramp_frames, self.strike_ramp_s),
+            observe_frames=max(X_MANIP_SAMPLES, frames(self.observe_frames, self.observe_s)),
+        )
 
 
 @dataclass
@@ -243,7 +363,10 @@ class PlanExecutor:
 
     def __init__(self, env: Any, config: ExecutorConfig | None = None) -> None:
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
-        self.config = config or ExecutorConfig()
+        self.sim_freq = float(self.env.sim_freq)
+        """Physics steps per second of the task's scene."""
+        self.config = (config or ExecutorConfig()).at_rate(self.sim_freq)
+        """The config with its frame counts fixed for ``sim_freq``."""
         from prl import plb as plb_module
 
         self.plb = plb_module.load_plb()
@@ -347,6 +470,7 @@ class _Episode:
         self.palm_body = agent.palm_link._objs[0]
         self.tool_body = self.env.tool._bodies[0]
         self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
+        self.spec: StageSpec = type(self.env).stages
         self.notes: list[str] = []
         self.current_target = self._qpos()
         self.root = _pose_matrix(self.art.get_root_pose())
@@ -376,17 +500,18 @@ class _Episode:
 
     def plan_pregrasp(self, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         center, r_palm, out, extent = self._grasp_frame()
-        open_q, _ = GRASP_POSTURES[self.pattern]
+        posture = GRASP_POSTURES[self.pattern]
+        open_q = posture.open
         ref = q_now.copy()
         ref[FINGER] = open_q
         ref[6:8] = 0.0
         far = self._solve(center + out * (extent + self.cfg.pregrasp_clearance), r_palm, ref, self.anchor_local)
-        near = self._solve(center + out * (extent + self.cfg.contact_gap), r_palm, ref, self.anchor_local)
+        near = self._solve(center + out * (extent + posture.gap), r_palm, ref, self.anchor_local)
         return far, near
 
     def plan_grasp(self, q_near: np.ndarray) -> np.ndarray:
         q = q_near.copy()
-        q[FINGER] = GRASP_POSTURES[self.pattern][1]
+        q[FINGER] = GRASP_POSTURES[self.pattern].closed
         return q
 
     def plan_lift(self, q_grasp: np.ndarray) -> np.ndarray:
@@ -412,12 +537,14 @@ class _Episode:
         axis_w = r_tool @ u
         target_dir = z_obj if np.dot(axis_w, z_obj) >= 0 else -z_obj
         r_new = _min_rotation(axis_w, target_dir) @ r_tool
-        # leading point of T_fv towards the object: the box support along -z_obj
-        d_local = r_new.T @ (-z_obj)
+        # the side T_fv comes from (the task's ``fv_approach``, object frame), and T_fv's leading point
+        # towards the object: the box support along -approach
+        approach = obj_r @ np.asarray(self.spec.fv_approach, dtype=np.float64)
+        d_local = r_new.T @ (-approach)
         support = float(np.sum(np.abs(d_local) * fv_half))
         fv_center_w_new_rel = r_new @ fv_center_local
-        # tool pose at contact: T_fv's leading face on the object's top, centred over it
-        p_tool = obj_p + z_obj * support - fv_center_w_new_rel
+        # tool pose at contact: T_fv's leading face on the object, centred on it
+        p_tool = obj_p + approach * support - fv_center_w_new_rel
         t_tool = np.eye(4)
         t_tool[:3, :3] = r_new
         t_tool[:3, 3] = p_tool
@@ -441,7 +568,7 @@ class _Episode:
             if self.motion == "finger_squeeze":
                 q_place = q_contact.copy()
                 q_place[_J["ARTz"]] += 0.03
-            height = self._fv_height(q_place, tool_in_palm, fv_center_local, obj_p, z_obj, support)
+            height = self._fv_height(q_place, tool_in_palm, fv_center_local, obj_p, approach, support)
             if best is None or height > best[0] + 1e-6:
                 best = (height, q_place, q_contact, sign)
         if best is None:
@@ -456,11 +583,12 @@ class _Episode:
         return q_hover, q_place, q_strike
 
     def _fv_height(self, q: np.ndarray, tool_in_palm: np.ndarray, fv_center_local: np.ndarray,
-                   obj_p: np.ndarray, z_obj: np.ndarray, support: float) -> float:
+                   obj_p: np.ndarray, approach: np.ndarray, support: float) -> float:
+        """Clearance of T_fv's leading face from the object along the approach direction at joint targets q."""
         m = self.root @ self.ik.link_pose(q)
         t_tool = m @ tool_in_palm
         c = t_tool[:3, :3] @ fv_center_local + t_tool[:3, 3]
-        return float(np.dot(c - obj_p, z_obj) - support)
+        return float(np.dot(c - obj_p, approach) - support)
 
     def _limits(self) -> tuple[np.ndarray, np.ndarray]:
         lim = np.asarray(self.art.get_qlimit(), dtype=np.float64)[self.perm]
@@ -469,8 +597,9 @@ class _Episode:
     # ------------------------------------------------------------------ loop
     def run(self, on_stage_end: Callable[[str, int], None] | None = None) -> EpisodeResult:
         cfg = self.cfg
-        frames = cfg.stage_frames()
+        frames = self.spec.stage_frames(cfg.n_frames)
         bounds = np.concatenate([[0], np.cumsum(frames)])
+        starts = {int(bounds[i]): i for i in range(len(STAGES)) if frames[i] > 0}  # first frame -> stage
         n = int(cfg.n_frames)
         n_rec = (n + cfg.record_every - 1) // cfg.record_every
         rec = {
@@ -490,6 +619,7 @@ class _Episode:
         blowup = False
         reason = ""
         stage = -1
+        grasp_stage = STAGES.index("grasp")
         plan_targets = np.empty((0, N_JOINTS))
         moving: np.ndarray = np.zeros(0, np.int64)
         stage_start = 0
@@ -501,17 +631,17 @@ class _Episode:
         k = 0
         t0 = time.perf_counter()
         for frame in range(n):
-            if frame == bounds[stage + 1]:
+            if frame in starts:
                 if on_stage_end is not None and stage >= 0:
                     th = perf_counter()
                     on_stage_end(STAGES[stage], frame - 1)
                     hook_time += perf_counter() - th
-                stage += 1
-                stage_start = frame
-                plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
-                if STAGES[stage] == "lift":
+                if stage == grasp_stage:  # the grasp has just ended
                     anchors_at_grasp = self.ik.anchors_world(self._qpos(), root=self.root)
                     gv_at_grasp = self.env.tool_gv_world()
+                stage = starts[frame]
+                stage_start = frame
+                plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
             if moving.size:
                 target = plan_targets[frame - stage_start]
                 for i in moving:
@@ -579,10 +709,13 @@ class _Episode:
         if STAGES[stage] == "motion":
             settle = int(n_frames * self.cfg.strike_settle_frac)
             ramp_start, ramp_len = settle, max(1, min(self.cfg.strike_ramp_frames, n_frames - settle))
+        elif STAGES[stage] == "grasp":  # per-joint closing windows of the posture
+            a, b = GRASP_POSTURES[self.pattern].windows()
+            ramp_start, ramp_len = a * n_frames, (b - a) * n_frames
         else:
             ramp_start, ramp_len = 0, n_frames
-        s = (np.arange(n_frames) + 1 - ramp_start) / ramp_len
-        targets = start_q + (end_q - start_q) * _min_jerk(s)[:, None]
+        s = (np.arange(n_frames)[:, None] + 1 - np.atleast_1d(ramp_start)) / np.atleast_1d(ramp_len)
+        targets = start_q + (end_q - start_q) * _min_jerk(s)
         moving = np.nonzero(np.abs(end_q - start_q) > 1e-12)[0]
         return targets, moving
 
@@ -604,7 +737,14 @@ class _Episode:
             return hover
         if name == "place":
             return self._place
-        return self._strike
+        if name == "motion":
+            if self.spec.runs("place"):
+                return self._strike
+            # no place stage: the motion acts from where the grasp left the hand, along the template's "+" sign
+            return start_q + self._motion_vector() * (1.0 + MOTION_OVERSHOOT)
+        q = start_q.copy()  # post_lift
+        q[_J["ARTz"]] += self.spec.post_lift_height
+        return q
 
 
 def _to_python(value: Any) -> Any:

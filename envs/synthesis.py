@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prl.constants import EPISODE_FRAMES
 from prl.plb import load_plb
 
 
@@ -46,7 +47,7 @@ class ShardSpec:
     """Root of the synthesis output (``<out_dir>/<task>/shard<k>``)."""
     max_attempts: int = 10_000
     """Give up after this many attempts (a task whose prior almost never succeeds)."""
-    n_frames: int = 1500
+    n_frames: int = EPISODE_FRAMES
     """Physics frames per plan episode."""
 
     def __post_init__(self) -> None:

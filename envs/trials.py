@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from prl.constants import EPISODE_FRAMES
 from prl.plb import load_plb
 
 
@@ -57,7 +58,7 @@ the unwrapped task env right after the observation phase (``PlanExecutor.observe
 the (784,) features of that phase."""
 
 
-def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 1500, randomization: float = 1.0,
+def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES, randomization: float = 1.0,
                progress: bool = True, desc: str | None = None) -> list[TrialOutcome]:
     """On the scene of each seed: observe, let ``policy`` choose a plan, execute it; one outcome each, in order.
 
@@ -85,7 +86,7 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
         env.close()
 
 
-def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = 1500,
+def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
                progress: bool = True, randomization: float = 1.0) -> list[TrialOutcome]:
     """Execute ``plans[i]`` on the scene of ``seeds[i]``; return one outcome each, in order."""
     if len(plans) != len(seeds):

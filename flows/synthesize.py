@@ -14,6 +14,7 @@ from prefect.cache_policies import NO_CACHE
 from prefect_dask import DaskTaskRunner
 
 from envs.synthesis import ShardResult, ShardSpec, split_successes
+from prl.constants import EPISODE_FRAMES
 
 
 @task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}", cache_policy=NO_CACHE)
@@ -27,7 +28,7 @@ def synthesize_shard(spec: ShardSpec) -> ShardResult:
 
 
 def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int, out_dir: Path,
-                n_frames: int = 1500, max_attempts: int = 10_000) -> list[ShardSpec]:
+                n_frames: int = EPISODE_FRAMES, max_attempts: int = 10_000) -> list[ShardSpec]:
     """The shards of a synthesis run (empty shards are left out)."""
     return [ShardSpec(task=t, shard=k, n_success=n, run_seed=seed, out_dir=Path(out_dir), n_frames=n_frames,
                       max_attempts=max_attempts)

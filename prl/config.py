@@ -6,7 +6,7 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from prl.constants import REPO_ROOT, TASKS
+from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 
 #: Tasks whose simulation exists in ``envs/tasks`` today.
 SIMULATED_TASKS: tuple[str, ...] = ("hammer",)
@@ -28,8 +28,8 @@ class PipelineConfig:
     """Run seed; every scene seed derives from it."""
     eval_scenes: int = 8
     """Randomised scenes on which the expert and sampled plans are executed."""
-    episode_frames: int = 1500
-    """Physics frames in one plan episode."""
+    episode_frames: int = EPISODE_FRAMES
+    """Physics frames in one plan episode (``EPISODE_SECONDS`` at ``SIM_FREQ``)."""
     output_dir: Path = field(default_factory=lambda: REPO_ROOT / "outputs")
     """Where run outputs (pictures, datasets) are written."""
     render: bool = True

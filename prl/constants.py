@@ -47,3 +47,13 @@ N_ANCHORS = 6
 RS_DIMS: tuple[int, ...] = (7, 7, 6, 4, 7, 6)
 
 TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew", "tweeze")
+
+#: Physics steps per second of every task scene (PhysX, CPU). See ``envs/tasks/base.py`` for the solver
+#: settings and the fidelity study that chose them.
+SIM_FREQ = 500
+#: Simulated duration of one plan episode, s (the paper's 1500 frames; 1500 frames at 500 Hz).
+EPISODE_SECONDS = 3.0
+#: Physics frames of one plan episode at ``SIM_FREQ``.
+EPISODE_FRAMES = int(round(SIM_FREQ * EPISODE_SECONDS))
+#: Recorded frames per second of a demonstration (the LeRobot dataset's fps).
+RECORD_HZ = 100

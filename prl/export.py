@@ -50,7 +50,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from prl.constants import JOINT_NAMES, N_JOINTS, N_SENSORS, RS_DIMS, SENSOR_NAMES
+from prl.constants import JOINT_NAMES, N_JOINTS, N_SENSORS, RECORD_HZ, RS_DIMS, SENSOR_NAMES
 
 CODEBASE_VERSION = "v3.0"
 """LeRobot dataset format written and accepted."""
@@ -61,8 +61,8 @@ SCENES_FILE = "meta/prl_scenes.jsonl"
 :func:`read_scenes`); lerobot itself ignores it."""
 EXPORT_KEY_FILE = "meta/prl_export_key.txt"
 """The key of the inputs an export was written from (:func:`export_key`), for :func:`reusable_export`."""
-DEFAULT_FPS = 100
-"""Recording rate of the demos (``ExecutorConfig.record_every`` = 5 at 500 Hz physics)."""
+DEFAULT_FPS = RECORD_HZ
+"""Recording rate of the demos (``prl.constants.RECORD_HZ``, the executor's record interval)."""
 ROBOT_TYPE = "prl_hand"
 """``robot_type`` written to ``meta/info.json`` (the agent's uid)."""
 NO_LABEL = -1

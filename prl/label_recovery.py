@@ -89,7 +89,7 @@ from prl.demo import load_demo
 from prl.plb import PhysicalLawsBank, load_plb
 
 #: Stage names of ``envs.executor.STAGES`` (copied: importing ``envs`` would load the simulator).
-STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion")
+STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion", "post_lift")
 _APPROACH, _GRASP, _LIFT, _PLACE, _MOTION = (STAGES.index(s) for s in ("approach", "grasp", "lift", "place", "motion"))
 
 CONTACT_THRESHOLD_N = 1.0
@@ -203,9 +203,15 @@ def _hand_tool_rotation(stage: np.ndarray, force: np.ndarray, palm_R: np.ndarray
 
 def _grasp(stage: np.ndarray, force: np.ndarray, patterns: np.ndarray
            ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """(majority Eq 6 label, per-sensor contact fraction, mean Jaccard, votes) over the lift records."""
+    """(majority Eq 6 label, per-sensor contact fraction, mean Jaccard, votes) over the lift records.
+
+    A task without a lift stage (a cap that stays on its bottle) votes over the second half of the grasp
+    stage instead: the fingers have closed and nothing else touches the tool yet."""
     n = patterns.shape[0]
     lift = np.nonzero(stage == _LIFT)[0]
+    if lift.size == 0 and np.any(stage > _GRASP):
+        grasp = np.nonzero(stage == _GRASP)[0]
+        lift = grasp[grasp.size // 2:]
     if lift.size == 0:
         return -1, np.zeros(force.shape[-1]), np.zeros(n), np.zeros(n, np.int64)
     contacts = _contacts(force[lift])

@@ -148,17 +148,18 @@ def test_jaccard():
 
 def test_grasp_label_hand_values(bank):
     g = bank.grasp_matrix()
-    # {ff_distal, th_distal}: pinch 2/3, disk 2/5, extension 2/10, wrap 1/12
+    # {ff_distal, th_distal}: pinch 2/3, extension 2/10, disk 1/6, wrap 1/11
     assert L.grasp_label(contacts("ff_distal", "th_distal"), g) == 2
     for k in range(4):  # every catalogue pattern is recognised as itself
         assert L.grasp_label(g[k], g) == k
-    batch = np.stack([contacts("palm", "ff_proximal", "th_distal"), np.zeros(17, np.uint8)])
+    # {palm, ff_proximal, ff_distal}: wrap 3/10, pinch 1/5, disk 1/7, extension 1/12
+    batch = np.stack([contacts("palm", "ff_proximal", "ff_distal"), np.zeros(17, np.uint8)])
     assert L.grasp_label(batch, g).tolist() == [0, -1]  # no contact -> -1
 
 
 def test_grasp_label_edge_cases(bank):
     g = bank.grasp_matrix()
-    assert L.grasp_label(contacts("lf_metacarpal"), g) == -1  # shares no sensor with any pattern
+    assert L.grasp_label(contacts("mf_proximal"), g) == -1  # shares no sensor with any pattern
     tie = np.array([[1, 1, 0, 0], [0, 0, 1, 1]], dtype=np.uint8)
     assert L.grasp_label([1, 0, 1, 0], tie) == 0  # 1/3 each -> lowest index
     with pytest.raises(ValueError, match="has 3 sensors, grasp patterns have 17"):

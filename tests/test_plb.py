@@ -74,14 +74,14 @@ def test_grasp_matrix(bank):
     np.testing.assert_array_equal(g[2], expected)
     assert g[0, SENSOR_NAMES.index("palm")] == 1  # medium wrap is a power grasp
     assert g[1, SENSOR_NAMES.index("palm")] == 0  # parallel extension: no palm
-    assert g.sum(axis=1).tolist() == [11, 10, 3, 5]
+    assert g.sum(axis=1).tolist() == [10, 10, 3, 5]
     assert len({row.tobytes() for row in g}) == 4
 
 
 def test_grasp_matrix_is_a_fresh_copy(bank):
     g = bank.grasp_matrix()
     g[:] = 0
-    assert bank.grasp_matrix().sum() == 29
+    assert bank.grasp_matrix().sum() == 28
 
 
 def test_motion_templates(bank):

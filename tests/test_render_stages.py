@@ -41,8 +41,12 @@ def test_stage_pictures_written(rendered):
 
     out, paths = rendered
     names = [p.name for p in paths]
-    assert names == ["00_initial.png"] + [f"{i + 1:02d}_{s}.png" for i, s in enumerate(STAGES)] + ["stages.png"]
-    assert len(list(out.glob("0*.png"))) == 8
+    from envs.tasks import task_class
+
+    ran = [name for name, _ in task_class("hammer").stages.shares]  # the stages the task declares, in order
+    assert set(ran) < set(STAGES)
+    assert names == ["00_initial.png"] + [f"{i + 1:02d}_{s}.png" for i, s in enumerate(ran)] + ["stages.png"]
+    assert len(list(out.glob("0*.png"))) == len(ran) + 1
     for path in paths[:-1]:
         image = _load(path)
         assert image.shape == (IMAGE_SIZE[1], IMAGE_SIZE[0], 3), path

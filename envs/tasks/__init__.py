@@ -9,8 +9,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from envs.tasks import hammer  # noqa: F401  (registers PRL-Hammer-v1)
-from envs.tasks.base import PRLTaskEnv
+from envs.tasks import grasp_probe, hammer  # noqa: F401  (registers PRL-GraspProbe-v1, PRL-Hammer-v1)
+from envs.tasks.base import PRLTaskEnv, physics_sim_config
 
 TASK_ENV_IDS: dict[str, str] = {
     "hammer": "PRL-Hammer-v1",
@@ -77,4 +77,4 @@ def fast_resets() -> Iterator[None]:
 _fast_reset_depth = 0
 
 
-__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "fast_resets", "make_env", "task_class"]
+__all__ = ["DEFAULT_ENV_KWARGS", "TASK_ENV_IDS", "PRLTaskEnv", "fast_resets", "make_env", "physics_sim_config", "task_class"]

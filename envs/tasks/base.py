@@ -27,6 +27,8 @@ from mani_skill.utils.structs import Actor
 from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
 from sapien import physx
 
+from envs.executor import StageSpec
+from prl.constants import SIM_FREQ
 from prl.geometry import rot_z
 
 Box = tuple[np.ndarray, np.ndarray]
@@ -35,12 +37,26 @@ Box = tuple[np.ndarray, np.ndarray]
 WorldBox = tuple[np.ndarray, np.ndarray, np.ndarray]
 """An oriented box in the world frame: (center (3,), half_extents (3,), R (3, 3)), R's columns = box axes."""
 
-SIM_FREQ = 500
-"""Physics steps per second (dt = 0.002 s, the PhysX step advised for stable grasps)."""
 CONTROL_FREQ = 50
-"""Control steps per second of ``env.step`` (10 physics steps per control step)."""
+"""Control steps per second of ``env.step``."""
 SOLVER_POSITION_ITERATIONS = 25
 """PhysX position iterations per step (>= 20 advised for stable multi-finger grasps)."""
+
+
+def physics_sim_config(sim_freq: int = SIM_FREQ, position_iterations: int = SOLVER_POSITION_ITERATIONS) -> SimConfig:
+    """ManiSkill's ``SimConfig`` of a PRL task scene at ``sim_freq`` Hz with that many PhysX position
+    iterations (the pipeline's own settings by default; others for the fidelity study of
+    ``bench/bench_physics.py``)."""
+    if sim_freq % CONTROL_FREQ:
+        raise ValueError(f"sim_freq must be a multiple of the control rate {CONTROL_FREQ} Hz, got {sim_freq!r}")
+    return SimConfig(
+        sim_freq=int(sim_freq),
+        control_freq=CONTROL_FREQ,
+        scene_config=SceneConfig(solver_position_iterations=int(position_iterations), solver_velocity_iterations=1),
+        default_materials_config=DefaultMaterialsConfig(
+            static_friction=TABLE_FRICTION, dynamic_friction=TABLE_FRICTION, restitution=0.0
+        ),
+    )
 
 TABLE_HALF_SIZE = (0.6, 0.6, 0.375)
 """Half extents of the static table box; its top is the plane z = 0."""
@@ -87,6 +103,9 @@ class PRLTaskEnv(BaseEnv):
     """Key of ``evaluate()`` holding the task's measured quantity (the paper's reward)."""
     expert_plan: tuple[int, ...] = ()
     """A hand-designed plan that should succeed on most randomised scenes (a reference, not a label)."""
+    stages: ClassVar[StageSpec]
+    """The executor stages this task runs, their time shares, where T_fv meets the object and what follows
+    the motion (``envs.executor.StageSpec``): data, so the executor needs no per-task branch."""
     tool: Actor
     """The tool: one dynamic rigid actor held by contact and friction only."""
     tool_gv_local: Box
@@ -111,17 +130,7 @@ class PRLTaskEnv(BaseEnv):
 
     @property
     def _default_sim_config(self) -> SimConfig:
-        return SimConfig(
-            sim_freq=SIM_FREQ,
-            control_freq=CONTROL_FREQ,
-            scene_config=SceneConfig(
-                solver_position_iterations=SOLVER_POSITION_ITERATIONS,
-                solver_velocity_iterations=1,
-            ),
-            default_materials_config=DefaultMaterialsConfig(
-                static_friction=TABLE_FRICTION, dynamic_friction=TABLE_FRICTION, restitution=0.0
-            ),
-        )
+        return physics_sim_config()
 
     # ------------------------------------------------------------------ scene helpers
     def _uniform(self, rng: np.random.RandomState, low: float, high: float) -> float:

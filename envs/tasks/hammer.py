@@ -12,6 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
+from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.shapes import (
     HANDLE_HALF_LENGTH,
@@ -111,6 +112,12 @@ class PRLHammerEnv(PRLTaskEnv):
     measure_key = "nail_descent_cm"
     expert_plan = (0, 3, 2, 0, 0, 1)
     """No tilt, no twist, anchor 2, medium wrap, wrist swing, nail Z || head Y (the paper's Fig 2 / 7 choices)."""
+    stages = StageSpec(
+        shares=(("pregrasp", 0.17), ("approach", 0.07), ("grasp", 0.10), ("lift", 0.10), ("transport", 0.18),
+                ("place", 0.08), ("motion", 0.30)),
+        fv_approach=(0.0, 0.0, 1.0),
+    )
+    """Pick up -> carry -> strike: the head comes down onto the nail from above."""
     nail: Articulation
     """Fixed-base nail articulation: link ``nail_base`` (on the board) -> prismatic ``nail_joint`` -> ``nail_head``."""
     nail_head: Link
