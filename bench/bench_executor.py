@@ -3,7 +3,7 @@
 On the hammer scene, in one process, measured side by side (DESIGN.md sec. 8 "Speed"):
 
 (a) raw ``scene.step()`` frames/s on the scene where the hand holds the hammer (the limit);
-(b) frames/s of ``PlanExecutor`` running the full expert plan episode (1500 frames, recording
+(b) frames/s of ``PlanExecutor`` running the full expert plan episode (3 s of simulated time, recording
     included), one fresh seed per round; the first (warm-up) episode is excluded;
 (c) frames/s of ManiSkill's per-step control path: ``env.step(action)`` with ``pd_joint_pos``
     targets (action = the current drive targets in ``JOINT_NAMES`` order, so the hand keeps
@@ -16,7 +16,7 @@ with several sensor patches, before and after each measurement. a / b / c are in
 rotating order over a few rounds and medians are reported, plus the ratios b/a and b/c, the
 executor's own in-episode ratio ``physics_time_s / wall_time_s`` and the peak RSS.
 
-    python -m bench.bench_executor [--rounds 5] [--frames 1500]
+    python -m bench.bench_executor [--rounds 5] [--frames 750]
 """
 
 from __future__ import annotations
@@ -211,8 +211,8 @@ def _check_lines(tag: str, checks: list[tuple[bool, str]], asleep: bool) -> list
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5, help="interleaved a/b/c rounds (one seed each)")
-    parser.add_argument("--frames", type=int, default=1500, help="physics frames per (a) / (c) measurement")
-    parser.add_argument("--frames-asleep", type=int, default=1500, help="frames per (a') / (c') measurement")
+    parser.add_argument("--frames", type=int, default=750, help="physics frames per (a) / (c) measurement")
+    parser.add_argument("--frames-asleep", type=int, default=750, help="frames per (a') / (c') measurement")
     parser.add_argument("--seed", type=int, default=1, help="first seed of the measured rounds")
     parser.add_argument("--verbose", action="store_true", help="print every measurement")
     args = parser.parse_args(argv)

@@ -7,7 +7,9 @@ run bare, one after the other in this process (``run_shard``: no Prefect, no Das
 Dask run's worker-seconds per attempt are printed as a multiple of the bare seconds per attempt:
 the cost of the orchestration (1.0 = none; worker start-up and an unevenly ending last shard
 count against it). Then the paper profile's wall time is extrapolated from the 2-worker rate.
-``python -m bench.bench_synthesis [--demos 8] [--shards 4]``
+Run it long enough (minutes per run) that the workers' start-up (about 10 s of imports, once per run)
+and the last, unevenly ending shard do not dominate: ``--demos 120 --shards 12``.
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--no-bare]``
 """
 
 from __future__ import annotations
@@ -44,21 +46,23 @@ def main() -> None:
     parser.add_argument("--demos", type=int, default=8, help="successful demos per run")
     parser.add_argument("--shards", type=int, default=4, help="more shards than workers evens out the load")
     parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--no-bare", action="store_true", help="skip the bare in-process run")
     args = parser.parse_args()
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, 2):
             rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}")
-        bare = _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare")
+        bare = None if args.no_bare else _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare")
     print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}")
     print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
     for workers, (wall, demos, attempts) in rows.items():
         print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")
-    print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
-          f"{60 * bare[2] / bare[0]:>13.1f}")
-    bare_per_attempt = bare[0] / bare[2]
-    for workers, (wall, _, attempts) in rows.items():
-        print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
+    if bare is not None:
+        print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
+              f"{60 * bare[2] / bare[0]:>13.1f}")
+        bare_per_attempt = bare[0] / bare[2]
+        for workers, (wall, _, attempts) in rows.items():
+            print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
     speedup = rows[1][0] / rows[2][0]
     print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {rows[1][2] == rows[2][2]})")
     per_min = 60 * rows[2][1] / rows[2][0]

@@ -1,29 +1,36 @@
 """Plan executor: a Representation-Space plan vector -> joint drive targets -> simulated episode.
 
-One plan episode (paper Fig 2) runs ``n_frames`` physics frames (1500 by default, 3 s at
-500 Hz) through these stages:
+One plan episode (paper Fig 2) runs ``n_frames`` physics frames (``EPISODE_SECONDS`` = 3 s of
+simulated time at the task's physics rate) through the stages its task declares
+(``PRLTaskEnv.stages``, a :class:`StageSpec`: which stages run, their time shares, where T_fv meets
+the object, what follows the motion). The executor knows these stages, in this order:
 
 0. ``pregrasp``  from home, put the chosen palm anchor (a2) on the centre line of T_gv, a
    few cm out along the palm normal, with the palm rotated relative to T_gv by Rx(a0) Rz(a1);
    fingers open, pre-shaped for the pattern.
-1. ``approach``  move along the palm normal until the anchor is just off the handle surface.
-2. ``grasp``     close the fingers into the pattern's posture (a3). The posture targets lie
-   past the handle, so the PD drives press the phalanges on it; the tool is then held by
-   contact and friction only.
+1. ``approach``  move along the palm normal until the anchor is at the pattern's gap from the
+   tool's surface (a power grasp presses the palm onto it).
+2. ``grasp``     close the fingers into the pattern's posture (a3, :data:`GRASP_POSTURES`), joint
+   groups in the posture's closing order. The targets lie past the tool, so the PD drives press
+   the phalanges on it; the tool is then held by contact and friction only.
 3. ``lift``      lift the hand (and, if the grasp holds, the tool) straight up.
 4. ``transport`` move above the object, rotating the hand so that the object's Z axis is
    aligned with the chosen T_fv axis (a5).
-5. ``place``     descend so that T_fv is ~3 cm from the object, at the start of the motion.
+5. ``place``     bring T_fv's leading face to ~3 cm from the object, on the side the task
+   declares (``fv_approach``), at the start of the motion.
 6. ``motion``    the kinematic motion (a4): a fast joint-space displacement along the
    motion's template (wrist WRJ1 / WRJ2 swing, arm translation along X / Y / Z, arm rotation
-   about the palm centre, finger squeeze).
+   about the palm centre, finger squeeze). Without a place stage it acts from the grasp.
+7. ``post_lift`` lift the hand again after the motion (e.g. tweezers carrying a cube up).
+
+Required: pregrasp, approach, grasp, motion. The hammer runs 0-6 (pick up -> carry -> strike).
 
 The transport/place targets are planned at the end of the lift from the *measured* tool pose
 in the palm (what a robot with object tracking would do); the place pose is chosen so that
-the motion's displacement would bring T_fv's leading face onto the object (approach from
-above when the motion allows it). Arm and wrist targets come from ``envs/ik.py``. Targets are
-ramped between waypoints with a minimum-jerk profile and written to the PhysX joint drives
-only when they change; the scene is stepped with ``scene.step()`` directly.
+the motion's displacement would bring T_fv's leading face onto the object. Arm and wrist
+targets come from ``envs/ik.py``. Targets are ramped between waypoints with a minimum-jerk
+profile and written to the PhysX joint drives only when they change; the scene is stepped with
+``scene.step()`` directly.
 
 Physical honesty: the executor never sets a pose, velocity or joint state of the tool or the
 object, adds no joint or constraint, and the outcome is the task's ``evaluate()`` of the
@@ -171,11 +178,12 @@ GRASP_POSTURES: dict[str, GraspPosture] = {
         gap=-0.002,
         closing=(("J3", 0.0, 0.4), ("J2", 0.3, 0.8), ("J1", 0.3, 0.8), ("TH", 0.5, 1.0)),
     ),
-    # flat fingers: the knuckles flex to 90 deg with the middle joints only slightly bent, so the middle
-    # and distal pads lie on the face; then the thumb swings in from the wrist side against the other face.
+    # extended fingers: only the knuckles flex, so the straight fingers' middle pads lie on the face (with
+    # the palm tilted by a0 to the face's slant); then the thumb swings in from the wrist side against the
+    # other face. No palm contact.
     "parallel_extension": GraspPosture(
         open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
-        closed=_posture(**_four(1.57, 0.4, 0.0), THJ5=0.6, THJ4=1.2),
+        closed=_posture(**_four(1.57, 0.0, 0.0), THJ5=0.6, THJ4=1.2),
         gap=0.015,
         closing=(("J3", 0.0, 0.4), ("J2", 0.0, 0.4), ("TH", 0.4, 1.0)),
     ),
@@ -471,6 +479,8 @@ class _Episode:
         self.tool_body = self.env.tool._bodies[0]
         self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
         self.spec: StageSpec = type(self.env).stages
+        self._ahead: dict[str, np.ndarray] = {}
+        """Targets planned ahead for a later stage (approach by the pregrasp, place and motion by the transport)."""
         self.notes: list[str] = []
         self.current_target = self._qpos()
         self.root = _pose_matrix(self.art.get_root_pose())
@@ -722,24 +732,20 @@ class _Episode:
     def _plan_stage(self, stage: int, waypoints: dict[int, np.ndarray], start_q: np.ndarray) -> np.ndarray:
         name = STAGES[stage]
         if name == "pregrasp":
-            far, near = self.plan_pregrasp(start_q)
-            self._near = near
+            far, self._ahead["approach"] = self.plan_pregrasp(start_q)
             return far
-        if name == "approach":
-            return self._near
         if name == "grasp":
             return self.plan_grasp(start_q)
         if name == "lift":
             return self.plan_lift(start_q)
         if name == "transport":
-            hover, place, strike = self.plan_place(start_q)
-            self._place, self._strike = place, strike
+            hover, self._ahead["place"], self._ahead["motion"] = self.plan_place(start_q)
             return hover
-        if name == "place":
-            return self._place
+        if name == "approach" or (name == "place") or (name == "motion" and self.spec.runs("place")):
+            if name not in self._ahead:  # the stage that plans it could not: hold still, the plan fails
+                raise ValueError(f"no {name} target: the stage that plans it found none")
+            return self._ahead[name]
         if name == "motion":
-            if self.spec.runs("place"):
-                return self._strike
             # no place stage: the motion acts from where the grasp left the hand, along the template's "+" sign
             return start_q + self._motion_vector() * (1.0 + MOTION_OVERSHOOT)
         q = start_q.copy()  # post_lift
@@ -772,7 +778,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", type=int, default=20, help="randomised scenes for the given plan")
     parser.add_argument("--random-plans", type=int, default=0, help="also run this many uniformly random plans")
     parser.add_argument("--seed", type=int, default=0, help="first scene seed")
-    parser.add_argument("--frames", type=int, default=1500)
+    parser.add_argument("--frames", type=int, default=None, help="physics frames per episode (default: 3 s)")
     parser.add_argument("--verbose", action="store_true")
     args = parser.parse_args(argv)
 

@@ -204,6 +204,52 @@ def render_stages(task: str, plan: Any, seed: int, out_dir: str | os.PathLike) -
     return [*pictures.paths, pictures.sheet]
 
 
+GRASP_VIEW = View(eye=(-0.16, -0.12, 0.04), target=(0.0, 0.0, 0.0), fovy_deg=45.0, follow_tool=True)
+"""Close-up of a grasp from the front-left of the reference object, following it."""
+
+
+def render_grasp_patterns(out_dir: str | os.PathLike, seed: int = 0) -> Path:
+    """One picture per catalogue grasp pattern, its posture holding its reference object (the grasp probe
+    of ``envs/tasks/grasp_probe.py``) at the end of the lift, titled with the sensors in contact and the
+    pattern Eq 6 reads from them; saved as the contact sheet ``grasp_patterns.png`` in ``out_dir``."""
+    require_rendering("grasp pattern pictures")
+    import envs.agents  # noqa: F401  (registers prl_hand)
+    from envs.executor import STAGES, PlanExecutor
+    from envs.tasks.grasp_probe import PROBE_OBJECTS, make_probe_env
+    from prl import labels
+    from prl.constants import SENSOR_NAMES
+    from prl.label_recovery import CONTACT_THRESHOLD_N
+
+    images, titles = [], []
+    for kind, spec in PROBE_OBJECTS.items():
+        env = make_probe_env(kind)
+        try:
+            executor = PlanExecutor(env)
+            env.reset(seed=int(seed))
+            camera = add_camera(env, GRASP_VIEW)
+            shots: dict[str, np.ndarray] = {}
+
+            def on_stage_end(stage: str, frame: int) -> None:
+                if stage == "lift":
+                    shots[stage] = take_picture(env, camera, GRASP_VIEW)
+
+            result = executor.run(spec["plan"], seed=None, on_stage_end=on_stage_end)
+        finally:
+            env.close()
+        lift = result.stage == STAGES.index("lift")
+        held = labels.binarize_contacts(result.force[lift], CONTACT_THRESHOLD_N).mean(axis=0) >= 0.5
+        read = labels.grasp_label(held.astype(np.uint8), executor.plb.grasp_matrix())
+        names = [SENSOR_NAMES[i] for i in np.flatnonzero(held)]
+        images.append(shots["lift"])
+        titles.append(f"{spec['pattern']} on the {kind}: lifted {result.outcome['lift_cm']:.0f} cm\n"
+                      f"reads {executor.plb.dims[3].choices[read] if read >= 0 else 'nothing'}; "
+                      + ", ".join(n.replace("_", " ") for n in names))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    return contact_sheet(images, titles, out / "grasp_patterns.png", columns=2,
+                         suptitle=f"grasp patterns on their reference objects (seed {seed}): end of the lift")
+
+
 def main(argv: list[str] | None = None) -> None:
     from envs.executor import _parse_plan
 
@@ -213,9 +259,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="outputs/stages", help="output folder")
     parser.add_argument("--view", choices=sorted(VIEWS), default="workspace")
+    parser.add_argument("--grasp-patterns", action="store_true",
+                        help="instead: one picture per grasp pattern on its reference object (grasp_patterns.png)")
     args = parser.parse_args(argv)
     os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp/prl-runtime")
     os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
+    if args.grasp_patterns:
+        print(render_grasp_patterns(args.out, args.seed))
+        return
 
     pictures = render_stage_pictures(args.task, args.plan, args.seed, args.out, view=args.view)
     for path in [*pictures.paths, pictures.sheet]:

@@ -13,35 +13,24 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 pytest.importorskip("mani_skill")
 
+import envs.agents  # noqa: E402,F401  (registers prl_hand)
 from envs.executor import GRASP_POSTURES, STAGES, GraspPosture, PlanExecutor  # noqa: E402
+from envs.tasks.grasp_probe import PROBE_OBJECTS, make_probe_env  # noqa: E402
 from prl import labels  # noqa: E402
 from prl.constants import SENSOR_NAMES  # noqa: E402
 from prl.label_recovery import CONTACT_THRESHOLD_N  # noqa: E402
 from prl.plb import load_plb  # noqa: E402
 
-#: pattern -> (reference object of envs/tasks/grasp_probe.py, plan). Every plan lifts the object (arm up,
-#: a4 = arm_linear_z); a0, a2 place the object where the posture is meant to meet it: the plate needs
-#: the palm tilted 30 deg so the straight fingers lie on its face.
-REFERENCE: dict[str, tuple[str, tuple[int, ...]]] = {
-    "medium_wrap": ("handle", (0, 3, 2, 0, 4, 1)),
-    "parallel_extension": ("plate", (6, 3, 1, 1, 4, 1)),
-    "palmar_pinch": ("rod", (0, 3, 3, 2, 4, 1)),
-    "precision_disk": ("disk", (0, 3, 2, 3, 4, 1)),
-}
-
-
-def probe_env(kind: str):
-    import gymnasium as gym
-
-    import envs.agents  # noqa: F401
-    from envs.tasks import DEFAULT_ENV_KWARGS
-
-    return gym.make("PRL-GraspProbe-v1", **(DEFAULT_ENV_KWARGS | {"render_backend": "cpu"}), object_kind=kind)
+#: pattern -> (reference object of envs/tasks/grasp_probe.py, its reference plan)
+REFERENCE: dict[str, tuple[str, tuple[int, ...]]] = {o["pattern"]: (kind, o["plan"]) for kind, o in PROBE_OBJECTS.items()}
 
 
 def test_every_catalogue_pattern_has_a_posture_and_a_reference():
     plb = load_plb()
     assert set(GRASP_POSTURES) == set(plb.dims[3].choices) == set(REFERENCE)
+    assert len(REFERENCE) == len(PROBE_OBJECTS)  # one reference object per pattern
+    with pytest.raises(ValueError, match="unknown object_kind 'cup'"):
+        make_probe_env("cup")
     for kind, plan in REFERENCE.values():
         plb.validate_plan(plan)
 
@@ -67,7 +56,7 @@ def test_posture_holds_its_reference_object_and_reads_as_itself(pattern):
     plb = load_plb()
     kind, plan = REFERENCE[pattern]
     assert plb.decode(plan)[3] == pattern
-    env = probe_env(kind)
+    env = make_probe_env(kind)
     try:
         result = PlanExecutor(env).run(plan, seed=0)
     finally:

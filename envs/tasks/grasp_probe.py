@@ -20,18 +20,22 @@ from sapien import physx
 from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy
 
-#: Reference objects: kind -> (half extents of the object's box / capsule, mass kg). Frames follow the
-#: hammer handle's convention (T_gv = the whole object; the palm's frame equals the object's frame for
-#: a plan with no rotation): local +Y is world up, so the palm comes down onto the object's top.
+#: Reference objects: kind -> the pattern it is for, the half extents of its box (capsule: half-length,
+#: radius, radius; disk: radius, half-height, radius), its mass (kg) and the reference plan that grasps and
+#: lifts it (a4 = arm_linear_z: the arm moves further up). Frames follow the hammer handle's convention
+#: (T_gv = the whole object; the palm's frame equals the object's frame for a plan with no rotation): local
+#: +Y is world up, so the palm comes down onto the object's top. The plate needs the palm tilted by
+#: a0 = -30 deg so that the straight fingers lie on its face.
 PROBE_OBJECTS: dict[str, dict[str, Any]] = {
     # a hammer-like handle lying along local X on two supports at its ends
-    "handle": {"pattern": "medium_wrap", "half": (0.10, 0.016, 0.016), "mass": 0.30},
-    # a flat plate standing on its long edge in a slotted stand: thin along local Z
-    "plate": {"pattern": "parallel_extension", "half": (0.06, 0.05, 0.0175), "mass": 0.08},
+    "handle": {"pattern": "medium_wrap", "half": (0.10, 0.016, 0.016), "mass": 0.30, "plan": (0, 3, 2, 0, 4, 1)},
+    # a flat box standing on its long edge on a pedestal: thin along local Z
+    "plate": {"pattern": "parallel_extension", "half": (0.06, 0.05, 0.0175), "mass": 0.08,
+              "plan": (6, 3, 1, 1, 4, 1)},
     # a thin rod (a tweezers' arm) along local X on two supports
-    "rod": {"pattern": "palmar_pinch", "half": (0.10, 0.004, 0.006), "mass": 0.04},
-    # a disk standing on its flat face (a bottle cap), axis = local Y
-    "disk": {"pattern": "precision_disk", "half": (0.036, 0.012, 0.036), "mass": 0.05},
+    "rod": {"pattern": "palmar_pinch", "half": (0.10, 0.004, 0.006), "mass": 0.04, "plan": (0, 3, 3, 2, 4, 1)},
+    # a disk standing on its flat face (a large bottle cap), axis = local Y
+    "disk": {"pattern": "precision_disk", "half": (0.036, 0.012, 0.036), "mass": 0.05, "plan": (0, 3, 2, 3, 4, 1)},
 }
 PROBE_FRICTION = 1.0
 """Static = dynamic friction of the reference objects."""
@@ -41,9 +45,19 @@ REST_XY = (-0.05, -0.10)
 """World (x, y) of the object's centre at rest (under the hand's home pose)."""
 LIFT_SUCCESS_M = 0.04
 """The object counts as picked up when its centre ends this much above its rest height."""
+PROBE_ENV_ID = "PRL-GraspProbe-v1"
 
 
-@register_env("PRL-GraspProbe-v1", max_episode_steps=150)
+def make_probe_env(kind: str, **kwargs: Any) -> Any:
+    """The grasp probe with reference object ``kind`` (one CPU scene, like ``envs.tasks.make_env``)."""
+    import gymnasium as gym
+
+    from envs.tasks import DEFAULT_ENV_KWARGS
+
+    return gym.make(PROBE_ENV_ID, **(DEFAULT_ENV_KWARGS | {"render_backend": "cpu"} | kwargs), object_kind=kind)
+
+
+@register_env(PROBE_ENV_ID, max_episode_steps=150)
 class PRLGraspProbeEnv(PRLTaskEnv):
     """**Task Description:**
     The hand grasps one reference object (``object_kind``: handle, plate, rod or disk) and lifts it.
@@ -58,11 +72,11 @@ class PRLGraspProbeEnv(PRLTaskEnv):
 
     task_name = "grasp_probe"
     measure_key = "lift_cm"
-    expert_plan = (0, 3, 0, 0, 6, 1)
+    expert_plan = PROBE_OBJECTS["handle"]["plan"]
     stages: ClassVar[StageSpec] = StageSpec(
         shares=(("pregrasp", 0.30), ("approach", 0.15), ("grasp", 0.25), ("lift", 0.20), ("motion", 0.10)),
     )
-    """Grasp and lift; the motion (finger squeeze in the probe plans) only tightens the hold."""
+    """Grasp and lift; the reference plans' motion (arm straight up) lifts the object further."""
 
     def __init__(self, *args: Any, object_kind: str = "handle", **kwargs: Any) -> None:
         if object_kind not in PROBE_OBJECTS:
