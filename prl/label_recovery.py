@@ -27,14 +27,18 @@ Which recorded frames each dimension uses, and why (stage indices are ``envs.exe
   labels read -5 deg instead of 0 for the expert plan [0,3,2,0,0,1]: a0 would agree on 0/10 and
   a1 on 7/10 of the successful samples instead of 10/10 each. A palm that lands on the handle
   during the approach (ok/ep507) rolls it by 20+ deg before the fingers close.
-* **a2 (Eq 5)** -- ``relative_position_label`` on the T_gv box at the end of the grasp stage
-  (``gv_center/gv_half/gv_rot``) and the six palm anchors recorded at the same instant
-  (``anchors_at_grasp``); the label is the anchor index ``j`` of the best (face, anchor) pair.
-  The executor puts anchor a2 on the line through T_gv's centre along the palm normal, and the
-  handle settles ~20 mm from the palm with an offset along the palm of up to ~15 mm; Eq 5 applied to
-  the actual box still picks the commanded anchor on every successful sample. (A variant that uses
-  the palm normal instead of the box faces is kept as ``anchor_palm_normal`` for diagnosis; it is
-  not better.)
+* **a2 (Eq 5)** -- ``relative_position_label`` on the T_gv box and the six palm anchors at the same
+  **pre-contact record** as a0/a1: the relative position is a pre-grasp law, and the fingers move the
+  tool while they close (on 2,000 executor-v2 hammer demos the handle moved a median of 9 mm in the
+  palm during the grasp stage; Eq 5 agreed with the commanded anchor on 56% of them at the end of the
+  grasp, on 74% before contact). The recording
+  holds the anchors and T_gv at the end of the grasp (``anchors_at_grasp``, ``gv_center/gv_rot``);
+  both are rigid in their bodies (palm, tool), so they are carried back to the pre-contact record with
+  the recorded palm and tool poses (:func:`_before_contact`). The label is the anchor index ``j`` of
+  the best (face, anchor) pair. The grasp-end reading is kept as ``anchor_grasp_end``, and a variant
+  that uses the palm normal instead of the box faces as ``anchor_palm_normal``, for diagnosis.
+  Eq 5 compares anchor directions with T_gv's face normals, so a palm tilted about the handle by
+  a0 <= -20 deg reads the neighbouring anchor row (see the README's label table).
 * **a3 (Eqs 6-7)** -- each sensor is binarised with ``CONTACT_THRESHOLD_N`` = 1 N (the hammer
   weighs ~2.3 N; 99% of non-zero sensor forces during the lift are above 1.3 N, the rest are
   grazing touches), ``grasp_label`` per record of the **lift** stage (the tool hangs in the hand:
@@ -54,24 +58,22 @@ Which recorded frames each dimension uses, and why (stage indices are ``envs.exe
   (0.45 rad), so the expert's head reads ~20 deg off Y there (Y-Z on all six expert demos). No held
   record in place/motion (the tool was dropped in transport) gives -1.
 
-Findings on the sample hammer demos (``python -m prl.label_recovery /tmp/prl-demos/hammer``; 10
-successful of 46): a0, a1, a2, a4 100%, a5 90%, **a3 0%**.
+Findings on the 2,000 demos of the paper profile (executor v2, 250 Hz; ``python -m prl.label_recovery
+<synthesis dir>``, 2026-12-01): a0 93.8%, a1 100%, a2 74.3%, a3 91.2%, a4 96.0%, a5 93.2%.
 
-* a3 is the executor's grasp, not the recovery: the "medium_wrap" posture of
-  ``envs.executor.GRASP_POSTURES`` holds the handle with the distal phalanges (ff, mf, lf, sometimes
-  rf), lf_metacarpal and th_middle, never with the palm or the proximal/middle phalanges that the
-  catalogue's medium-wrap vector lists, so Eq 6 gives precision_disk (Jaccard 4/7 against 1/16 for
-  medium_wrap on the typical contact set) on 9 of 10 successful demos and palmar_pinch on ok/ep507
-  (ff_distal, lf_metacarpal, th_middle, th_distal). Closing that gap is a change to the posture or
-  to the catalogue's pattern (neither is touched here), not to the labels.
-* a5's one miss (ok/ep518) is physical: the hammer slipped out of the hand during the transport
-  (no sensor touches it from there on) and fell onto the nail, which PRL-Hammer-v1 counts as a
-  success; no alignment was ever executed, so a5 is -1.
-* Over all 46 demos (``--all``) a2, a3 and a5 drop (61%, 4%, 30%) because most failed plans never
-  hold the tool (no lift contacts: a3 = -1; no held place/motion record: a5 = -1; the handle knocked
-  away before the anchors are recorded: a2 off), and a4 misses fail/ep537, whose arm did not follow
-  its strike target at all (0.02 rad of finger drift, just above ``MIN_MOTION_NORM``, reads as
-  finger_squeeze).
+* a0: the arm stops short of large tilts (commanded -30 deg reads -24.4 deg, -25 reads -21.6, medians
+  before contact), so 92 of the 104 demos at -30 read -25 and 32 of the 111 at -25 read -20.
+* a2: the misses are tilted grasps. Eq 5 compares anchor directions with T_gv's face normals; with the
+  palm tilted about the handle the commanded anchor, on the palm normal, is no longer the one best
+  aligned with a face, the neighbouring row is. Agreement by commanded a0 (0, -5, ..., -30 deg): 95%,
+  95%, 87%, 58%, 24%, 7%, 3%. The palm-normal diagnostic (``anchor_palm_normal``) equals the commanded
+  anchor on all 2,000: the hand did put that anchor on T_gv's centre line.
+* a3: medium wrap 96.2% (1,731 of 1,800); on the hammer's round handle a parallel extension reads as
+  itself on 40 of 89 and a precision disk on 21 of 79 (their other demos read palmar pinch: only the
+  index and thumb reach the 3 cm handle); palmar pinch 32 of 32.
+* a5: the misses (136) are hammers that turned in the hand on the way: between the end of the lift
+  and the alignment record the tool turned a median 52 deg in the palm's frame on the misses, 4 deg on
+  the matches, so the executed alignment is not the commanded one.
 """
 
 from __future__ import annotations
@@ -146,6 +148,8 @@ class RecoveredLabels:
     """Cosine of Eq 5's best (face, anchor) pair; NaN if none."""
     anchor_palm_normal: int
     """Diagnostic: the anchor whose direction from T_gv's centre is closest to the palm normal; -1 if none."""
+    anchor_grasp_end: int
+    """Diagnostic: Eq 5's anchor at the end of the grasp stage, after the fingers moved the tool; -1 if none."""
     contact_fraction: np.ndarray
     """(17,) fraction of lift records in which each sensor is in contact."""
     grasp_jaccard: np.ndarray
@@ -199,6 +203,32 @@ def _hand_tool_rotation(stage: np.ndarray, force: np.ndarray, palm_R: np.ndarray
         k = min(k, int(touching[0]) - 1)
     k = max(k, 0)
     return k, labels.relative_euler_xyz(tool_R[k], palm_R[k]), euler_grasp
+
+
+def _pose_matrix(position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rotation, position
+    return m
+
+
+def _before_contact(stage: np.ndarray, k: int, palm_pose: np.ndarray, palm_R: np.ndarray, tool_pose: np.ndarray,
+                    tool_R: np.ndarray, anchors_end: np.ndarray, gv_center_end: np.ndarray, gv_rot_end: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The palm anchors and T_gv (centre, axes) at record ``k``, moved rigidly from their grasp-end values.
+
+    The anchors are fixed in the palm and T_gv in the tool, so their grasp-end world positions are carried
+    into the palm / tool frame of the last grasp record and out again at record ``k``. NaN if either is
+    missing (no grasp stage, no pre-contact record)."""
+    grasp = np.nonzero(stage == _GRASP)[0]
+    nan = (np.full_like(anchors_end, np.nan), np.full(3, np.nan), np.full((3, 3), np.nan))
+    if k < 0 or grasp.size == 0 or not (np.all(np.isfinite(anchors_end)) and np.all(np.isfinite(gv_rot_end))):
+        return nan
+    g = int(grasp[-1])
+    palm_g, palm_k = _pose_matrix(palm_pose[g, :3], palm_R[g]), _pose_matrix(palm_pose[k, :3], palm_R[k])
+    tool_g, tool_k = _pose_matrix(tool_pose[g, :3], tool_R[g]), _pose_matrix(tool_pose[k, :3], tool_R[k])
+    move_palm, move_tool = palm_k @ np.linalg.inv(palm_g), tool_k @ np.linalg.inv(tool_g)
+    anchors = anchors_end @ move_palm[:3, :3].T + move_palm[:3, 3]
+    return anchors, move_tool[:3, :3] @ gv_center_end + move_tool[:3, 3], move_tool[:3, :3] @ gv_rot_end
 
 
 def _grasp(stage: np.ndarray, force: np.ndarray, patterns: np.ndarray
@@ -289,10 +319,15 @@ def recover_plan(demo: Any, plb: PhysicalLawsBank | None = None) -> RecoveredLab
     else:
         notes.append("no approach stage recorded: a0/a1 undetermined")
 
-    # a2: Eq 5 on T_gv and the anchors at the end of the grasp stage
-    anchors = _field(demo, "anchors_at_grasp").astype(float)
-    gv_center, gv_half, gv_rot = (_field(demo, n).astype(float) for n in ("gv_center", "gv_half", "gv_rot"))
-    face, cos_best, palm_normal_anchor = -1, float("nan"), -1
+    # a2: Eq 5 on T_gv and the anchors at the pre-contact record of a0/a1 (the grasp-end reading is kept)
+    anchors_end = _field(demo, "anchors_at_grasp").astype(float)
+    gv_center_end, gv_half, gv_rot_end = (_field(demo, n).astype(float) for n in ("gv_center", "gv_half", "gv_rot"))
+    anchors, gv_center, gv_rot = _before_contact(stage, k_contact, palm_pose, palm_R, tool_pose, tool_R,
+                                                 anchors_end, gv_center_end, gv_rot_end)
+    face, cos_best, palm_normal_anchor, anchor_end = -1, float("nan"), -1, -1
+    if np.all(np.isfinite(anchors_end)) and np.all(np.isfinite(gv_rot_end)):
+        faces_end = labels.box_face_centers(gv_center_end, gv_half, gv_rot_end)
+        anchor_end = int(labels.relative_position_label(gv_center_end, faces_end, anchors_end)[1])
     if np.all(np.isfinite(anchors)) and np.all(np.isfinite(gv_rot)):
         faces = labels.box_face_centers(gv_center, gv_half, gv_rot)
         face, j = (int(x) for x in labels.relative_position_label(gv_center, faces, anchors))
@@ -301,11 +336,9 @@ def recover_plan(demo: Any, plb: PhysicalLawsBank | None = None) -> RecoveredLab
             g = (faces[face] - gv_center) / np.linalg.norm(faces[face] - gv_center)
             h = (anchors[j] - gv_center) / np.linalg.norm(anchors[j] - gv_center)
             cos_best = float(g @ h)
-        lift = np.nonzero(stage == _LIFT)[0]
-        if lift.size:
-            normal = palm_R[lift[0]][:, 1]  # +Y_palm: from the handle towards the palm
-            h_all = anchors - gv_center
-            palm_normal_anchor = int(np.argmax(h_all @ normal / np.linalg.norm(h_all, axis=1)))
+        normal = palm_R[k_contact][:, 1]  # +Y_palm: from the handle towards the palm
+        h_all = anchors - gv_center
+        palm_normal_anchor = int(np.argmax(h_all @ normal / np.linalg.norm(h_all, axis=1)))
     else:
         notes.append("no anchors/T_gv at grasp (grasp stage not completed): a2 undetermined")
 
@@ -335,7 +368,7 @@ def recover_plan(demo: Any, plb: PhysicalLawsBank | None = None) -> RecoveredLab
 
     return RecoveredLabels(
         plan=plan, contact_record=k_contact, euler_contact_deg=euler_c, euler_grasp_deg=euler_g,
-        anchor_face=face, anchor_cos=cos_best, anchor_palm_normal=palm_normal_anchor,
+        anchor_face=face, anchor_cos=cos_best, anchor_palm_normal=palm_normal_anchor, anchor_grasp_end=anchor_end,
         contact_fraction=contact_frac, grasp_jaccard=jac, grasp_votes=votes,
         motion_displacement=disp, motion_cosine=m_cos, object_z_in_tool=z_tool,
         tool_object_record=k_obj, tool_object_angle_deg=angle, notes=tuple(notes),

@@ -181,3 +181,20 @@ def test_stage_spec_rejects_bad_declarations(shares, extra, match):
 
     with pytest.raises(ValueError, match=match):
         StageSpec(shares=shares, **extra)
+
+
+@pytest.mark.sim
+def test_unplannable_transport_ends_as_a_failed_episode(executor, monkeypatch):
+    """When the transport finds no reachable place pose, the place and motion stages hold still (the plan
+    fails physically) instead of reading targets that were never planned."""
+    from envs import executor as executor_module
+
+    def unreachable(self, q):
+        raise ValueError("no reachable place pose (test)")
+
+    monkeypatch.setattr(executor_module._Episode, "plan_place", unreachable)
+    r = executor.run(EXPERT, seed=3)
+    assert not r.success
+    assert any(n.startswith("transport: no reachable place pose") for n in r.notes), r.notes
+    assert any(n.startswith("place: no place target") for n in r.notes), r.notes
+    assert any(n.startswith("motion: no motion target") for n in r.notes), r.notes
