@@ -7,7 +7,7 @@ On the hammer scene, in one process, measured side by side (DESIGN.md sec. 8 "Sp
     included), one fresh seed per round; the first (warm-up) episode is excluded;
 (c) frames/s of ManiSkill's per-step control path: ``env.step(action)`` with ``pd_joint_pos``
     targets (action = the current drive targets in ``JOINT_NAMES`` order, so the hand keeps
-    holding the hammer; 10 physics frames per control step), from the same held state as (a).
+    holding the hammer; 5 physics frames per control step at 250 Hz), from the same held state as (a).
 
 The held state: the executor runs the expert plan on the round's seed up to the last frame of
 the ``lift`` stage (``scene.step`` is wrapped to stop the episode right after that frame, before
@@ -225,6 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     env = make_env("hammer", control_mode="pd_joint_pos")
     executor = PlanExecutor(env, ExecutorConfig())
     u = env.unwrapped
+    steps = int(u._sim_steps_per_control)
     print(f"hammer scene, expert plan {list(EXPERT)}: {executor.plb.describe(executor.validate(EXPERT))}")
     print(f"PhysX CPU, {u.sim_freq} Hz physics, {u._sim_steps_per_control} frames per env.step; "
           f"{executor.config.n_frames} frames per episode, record every {executor.config.record_every}")
@@ -288,7 +289,8 @@ def main(argv: list[str] | None = None) -> None:
     over_b = np.median(1e6 / np.asarray(res["b"]) - 1e6 / np.asarray(res["b_phys"]))
     over_c = np.median(1e6 / np.asarray(res["c"]) - 1e6 / np.asarray(res["c_phys"]))
     print(f"non-physics cost per physics frame: executor {over_b:.0f} us (targets, recording, sensors, planning), "
-          f"env.step {over_c:.0f} us (controller, obs, info, reward; per 10 frames: {10 * over_c:.0f} us)")
+          f"env.step {over_c:.0f} us (controller, obs, info, reward; per env.step of {steps} frames: "
+          f"{steps * over_c:.0f} us)")
     a_sleep, c_sleep = med["a'"], med["c'"]
     print(f"for reference, with PhysX sleeping allowed: b/a' = {med['b'] / a_sleep:.2f}, b/c' = {med['b'] / c_sleep:.1f}x; "
           f"a motionless held hammer falls asleep in PhysX, so a' times mostly skipped solver work")

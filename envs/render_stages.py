@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -131,13 +132,14 @@ def contact_sheet(images: list[np.ndarray], titles: list[str], path: Path, colum
 
     rows = (len(images) + columns - 1) // columns
     h, w = images[0].shape[:2]
-    fig, axes = plt.subplots(rows, columns, figsize=(columns * 3.2 * w / h * 0.75 + 0.2, rows * 2.75 + 0.6),
-                             squeeze=False)
+    title_lines = max(t.count("\n") + 1 for t in titles)  # room above each row for multi-line titles
+    fig, axes = plt.subplots(rows, columns, figsize=(columns * 3.2 * w / h * 0.75 + 0.2,
+                                                     rows * (2.6 + 0.17 * title_lines) + 0.6), squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
     for ax, image, title in zip(axes.flat, images, titles):
         ax.imshow(image)
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title, fontsize=10 if title_lines == 1 else 8)
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
     fig.tight_layout()
@@ -151,7 +153,7 @@ def render_stage_pictures(task: str, plan: Any, seed: int, out_dir: str | os.Pat
     """Execute ``plan`` on ``task`` with scene ``seed`` and save a picture of each stage end to ``out_dir``."""
     require_rendering("stage pictures")
     import envs.agents  # noqa: F401  (registers prl_hand)
-    from envs.executor import STAGES, PlanExecutor
+    from envs.executor import PlanExecutor
     from envs.tasks import make_env
 
     view = VIEWS[view] if isinstance(view, str) else view
@@ -187,7 +189,7 @@ def render_stage_pictures(task: str, plan: Any, seed: int, out_dir: str | os.Pat
     suptitle = (f"{task}, seed {seed}, {description}\nsuccess={result.success}"
                 + (f", nail descent {descent:.2f} cm" if isinstance(descent, (int, float)) else ""))
     sheet = contact_sheet(images, labels, out / "stages.png", suptitle=suptitle)
-    missing = [s for s in STAGES if s not in frames]
+    missing = [s for s, _ in type(env.unwrapped).stages.shares if s not in frames]
     if missing:
         result.notes.append(f"no pictures of stages never reached: {missing}")
     return StagePictures(paths=paths, sheet=sheet, result=result, stage_frames=frames)
@@ -241,9 +243,10 @@ def render_grasp_patterns(out_dir: str | os.PathLike, seed: int = 0) -> Path:
         read = labels.grasp_label(held.astype(np.uint8), executor.plb.grasp_matrix())
         names = [SENSOR_NAMES[i] for i in np.flatnonzero(held)]
         images.append(shots["lift"])
-        titles.append(f"{spec['pattern']} on the {kind}: lifted {result.outcome['lift_cm']:.0f} cm\n"
-                      f"reads {executor.plb.dims[3].choices[read] if read >= 0 else 'nothing'}; "
-                      + ", ".join(n.replace("_", " ") for n in names))
+        reads = executor.plb.dims[3].choices[read] if read >= 0 else "nothing"
+        touching = textwrap.fill(", ".join(n.replace("_", " ") for n in names), width=48)
+        titles.append(f"{spec['pattern']} on the {kind}, lifted {result.outcome['lift_cm']:.0f} cm\n"
+                      f"Eq 6 reads {reads}\n{touching}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     return contact_sheet(images, titles, out / "grasp_patterns.png", columns=2,

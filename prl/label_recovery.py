@@ -59,7 +59,7 @@ Which recorded frames each dimension uses, and why (stage indices are ``envs.exe
   record in place/motion (the tool was dropped in transport) gives -1.
 
 Findings on the 2,000 demos of the paper profile (executor v2, 250 Hz; ``python -m prl.label_recovery
-<synthesis dir>``, 2026-12-01): a0 93.8%, a1 100%, a2 74.3%, a3 91.2%, a4 96.0%, a5 93.2%.
+<synthesis dir>``, 2026-12-01): a0 93.8%, a1 100%, a2 74.2%, a3 91.2%, a4 96.0%, a5 93.2%.
 
 * a0: the arm stops short of large tilts (commanded -30 deg reads -24.4 deg, -25 reads -21.6, medians
   before contact), so 92 of the 104 demos at -30 read -25 and 32 of the 111 at -25 read -20.
