@@ -19,7 +19,7 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 pytest.importorskip("lerobot")
 
-from prl.constants import N_JOINTS, N_SENSORS
+from prl.constants import N_JOINTS, N_SENSORS, RECORD_HZ
 from prl.export import (
     EXPORT_KEY_FILE,
     FEATURES,
@@ -286,7 +286,7 @@ def test_export_reload_matches_demos(tmp_path: Path, sim_demos: list[Path]) -> N
     assert lengths == [len(d.stage) for d in demos] == list(report.episode_lengths)
     assert len(ds) == sum(lengths) == report.n_frames
     assert [t[0] for t in ds.meta.episodes["tasks"]] == [d.text for d in demos]
-    assert ds.fps == 100 and ds.meta.info.codebase_version == "v3.0"
+    assert ds.fps == RECORD_HZ == 50 and ds.meta.info.codebase_version == "v3.0"
 
     starts = np.concatenate([[0], np.cumsum(lengths)])
     for e, demo in enumerate(demos):
