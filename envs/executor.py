@@ -124,11 +124,9 @@ def _posture(**values: float) -> np.ndarray:
     return q[FINGER].copy()
 
 
-def _four(j3: float, j2: float, j1: float, j4: float = 0.0, lfj5: float = 0.0) -> dict[str, float]:
-    out = {"LFJ5": lfj5}
-    for f in ("FF", "MF", "RF", "LF"):
-        out.update({f"{f}J4": j4, f"{f}J3": j3, f"{f}J2": j2, f"{f}J1": j1})
-    return out
+def _four(j3: float, j2: float, j1: float) -> dict[str, float]:
+    """The same J3 / J2 / J1 flexion on the four fingers (for :func:`_posture`)."""
+    return {f"{f}J{j}": v for f in ("FF", "MF", "RF", "LF") for j, v in ((3, j3), (2, j2), (1, j1))}
 
 
 @dataclass(frozen=True)
@@ -198,8 +196,7 @@ GRASP_POSTURES: dict[str, GraspPosture] = {
     # fingertips spread round a disk below the palm, the thumb opposing them from the wrist side
     "precision_disk": GraspPosture(
         open=_posture(**_four(0.0, 0.0, 0.0), THJ5=-1.0, THJ4=1.2),
-        closed=_posture(FFJ4=-0.3, MFJ4=-0.1, RFJ4=-0.1, LFJ4=-0.3,
-                        **{k: v for k, v in _four(1.2, 1.2, 0.9).items() if not k.endswith("J4")},
+        closed=_posture(FFJ4=-0.3, MFJ4=-0.1, RFJ4=-0.1, LFJ4=-0.3, **_four(1.2, 1.2, 0.9),
                         THJ5=1.0, THJ4=1.2, THJ2=0.4, THJ1=0.6),
         gap=0.045,
         closing=(("TH", 0.3, 1.0),),
@@ -741,7 +738,7 @@ class _Episode:
         if name == "transport":
             hover, self._ahead["place"], self._ahead["motion"] = self.plan_place(start_q)
             return hover
-        if name == "approach" or (name == "place") or (name == "motion" and self.spec.runs("place")):
+        if name in ("approach", "place") or (name == "motion" and self.spec.runs("place")):
             if name not in self._ahead:  # the stage that plans it could not: hold still, the plan fails
                 raise ValueError(f"no {name} target: the stage that plans it found none")
             return self._ahead[name]
