@@ -403,6 +403,24 @@ def format_agreement(fractions: np.ndarray, n: int, plb: PhysicalLawsBank | None
     return "\n".join(lines)
 
 
+def format_agreement_by(commanded: np.ndarray, recovered: np.ndarray, dim: int, by: int,
+                        plb: PhysicalLawsBank | None = None) -> str:
+    """Agreement of dimension ``dim`` for each commanded choice of dimension ``by`` (e.g. the anchor a2
+    per commanded tilt a0): one line per choice that occurs, ``count agreeing / count``."""
+    plb = plb or load_plb()
+    c, r = np.asarray(commanded, dtype=np.int64), np.asarray(recovered, dtype=np.int64)
+    for d in (dim, by):
+        if not 0 <= d < len(plb.dims):
+            raise ValueError(f"dimension index must be in 0..{len(plb.dims) - 1}, got {d}")
+    lines = [f"a{dim} {plb.dims[dim].name} agreement by commanded a{by} {plb.dims[by].name}"]
+    for k, choice in enumerate(plb.dims[by].choices):
+        rows = c[:, by] == k
+        if rows.any():
+            hit = int(np.sum(c[rows, dim] == r[rows, dim]))
+            lines.append(f"  {str(choice):>20}: {hit}/{int(rows.sum())} = {hit / rows.sum():.2f}")
+    return "\n".join(lines)
+
+
 # --------------------------------------------------------------------------- CLI
 
 
@@ -412,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("dir", type=Path, help="directory searched recursively for *.npz demos")
     parser.add_argument("--all", action="store_true", help="include failed demos (default: successful only)")
     parser.add_argument("--verbose", "-v", action="store_true", help="one line per demo")
+    parser.add_argument("--by", nargs=2, type=int, action="append", default=[], metavar=("DIM", "BY"),
+                        help="also print dimension DIM's agreement per commanded choice of dimension BY "
+                             "(e.g. --by 2 0: the anchor per tilt; --by 3 3: each grasp pattern); repeatable")
     args = parser.parse_args(argv)
     if not args.dir.is_dir():
         parser.error(f"not a directory: {str(args.dir)!r}")
@@ -436,6 +457,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     frac = agreement(np.stack(commanded), np.stack(recovered))
     print(format_agreement(frac, len(commanded), plb))
+    for dim, by in args.by:
+        print(format_agreement_by(np.stack(commanded), np.stack(recovered), dim, by, plb))
     return 0
 
 

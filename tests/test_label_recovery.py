@@ -321,3 +321,13 @@ def test_expert_episodes_recover_plan(expert_demos, bank):
         assert out.tool_object_angle_deg < 15.0  # 11.4 deg on seed 0 (the classes are 45 deg apart)
     frac = LR.agreement([d.plan for d in expert_demos], [LR.recover_plan(d, bank).plan for d in expert_demos])
     assert frac.tolist() == [1.0] * 6
+
+
+def test_agreement_by_another_dimension_hand_values(bank):
+    commanded = np.array([[0, 0, 1, 0, 0, 0], [0, 0, 2, 0, 0, 0], [6, 0, 3, 0, 0, 0], [6, 0, 4, 0, 0, 0]])
+    recovered = np.array([[0, 0, 1, 0, 0, 0], [0, 0, 2, 0, 0, 0], [6, 0, 1, 0, 0, 0], [6, 0, 4, 0, 0, 0]])
+    text = LR.format_agreement_by(commanded, recovered, 2, 0, bank)
+    assert "a2 hand_tool_anchor agreement by commanded a0" in text
+    assert "0: 2/2 = 1.00" in text and "-30: 1/2 = 0.50" in text and "-5:" not in text  # absent choices skipped
+    with pytest.raises(ValueError, match="got 9"):
+        LR.format_agreement_by(commanded, recovered, 9, 0, bank)
