@@ -62,6 +62,17 @@ tuple. A task runs the subsequence its ``StageSpec`` declares (the others get 0 
 REQUIRED_STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "motion")
 """Stages every task runs: a plan always grasps its tool and performs its kinematic motion."""
 
+FAULTS: tuple[str, ...] = ("unreachable", "blowup")
+"""Why the executor may end a valid plan as a failure on its own (``EpisodeResult.fault``):
+``unreachable`` - a stage found no joint target for its waypoint (no IK solution, no place pose, a
+non-finite target) and held still, so the plan then failed physically; ``blowup`` - the simulated
+state became non-finite or ran away (faster than ``ExecutorConfig.blowup_speed``), and stepping stopped.
+A valid plan never raises: every such case is a failed ``EpisodeResult`` with its reason in ``notes``."""
+
+PLANNING_ERRORS: tuple[type[Exception], ...] = (ValueError, ArithmeticError, np.linalg.LinAlgError)
+"""What planning a stage's waypoint may raise on a hard scene (IK without a solution, a degenerate
+geometry); each makes the stage hold still with fault ``unreachable``. Anything else is a bug and raises."""
+
 
 @dataclass(frozen=True)
 class StageSpec:
@@ -80,6 +91,15 @@ class StageSpec:
     the end of ``place`` (the hammer's head: from above, the object's +Z)."""
     post_lift_height: float = 0.0
     """Lift (m) of the hand in ``post_lift``, after the motion (tweezers carrying the cube up)."""
+    motion_dir: tuple[float, float, float] | None = None
+    """Unit direction, in the object's frame, in which the motion must carry T_fv; of a motion's two
+    signs the place stage takes the one whose place pose lies farthest back along it. None: onto the
+    object, ``-fv_approach`` (the hammer's strike comes down; a sweep declares the way to its zone)."""
+    motion_scale: float = 1.0
+    """Factor on ``MOTION_AMPLITUDES`` (a sweep pushes farther than a strike swings)."""
+    motion_s: float | None = None
+    """Seconds over which the motion's displacement is ramped; None: the executor's fast strike
+    (``ExecutorConfig.strike_ramp_s``). A sweep pushes slowly so the debris slides instead of flying."""
 
     def __post_init__(self) -> None:
         names = [name for name, _ in self.shares]
@@ -100,6 +120,19 @@ class StageSpec:
             raise ValueError(f"post_lift_height must be > 0 exactly when 'post_lift' runs, got {self.post_lift_height!r}")
         if abs(float(np.linalg.norm(self.fv_approach)) - 1.0) > 1e-6:
             raise ValueError(f"fv_approach must be a unit vector, got {self.fv_approach!r}")
+        if self.motion_dir is not None and abs(float(np.linalg.norm(self.motion_dir)) - 1.0) > 1e-6:
+            raise ValueError(f"motion_dir must be a unit vector or None, got {self.motion_dir!r}")
+        if not (isinstance(self.motion_scale, (int, float)) and self.motion_scale > 0):
+            raise ValueError(f"motion_scale must be > 0, got {self.motion_scale!r}")
+        if self.motion_s is not None and not (isinstance(self.motion_s, (int, float)) and self.motion_s > 0):
+            raise ValueError(f"motion_s must be > 0 s or None, got {self.motion_s!r}")
+
+    @property
+    def push(self) -> np.ndarray:
+        """``motion_dir`` resolved (object frame)."""
+        if self.motion_dir is None:
+            return -np.asarray(self.fv_approach, dtype=np.float64)
+        return np.asarray(self.motion_dir, dtype=np.float64)
 
     def runs(self, stage: str) -> bool:
         """Whether the task runs ``stage``."""
@@ -322,6 +355,9 @@ class EpisodeResult:
     """Physics frames per second of the loop (incl. target updates and recording)."""
     notes: list[str] = field(default_factory=list)
     """Planner notes (e.g. an unreachable target replaced by the nearest reachable one)."""
+    fault: str = ""
+    """Why the executor, not physics alone, ended the plan: ``""`` (nothing went wrong in planning or
+    simulation), or one of ``FAULTS``; the details are in ``notes``."""
     x_manip: np.ndarray = field(default_factory=lambda: np.zeros(X_MANIP_DIM, np.float32))
     """(784,) features of the observation phase before the plan acted (``prl.demo`` layout)."""
 
@@ -401,6 +437,11 @@ class PlanExecutor:
         observation = self._observation if self._observation is not None else self.observe()
         self._observation = None
         result = _Episode(self, plan).run(on_stage_end)
+        if not np.all(np.isfinite(observation)):  # the scene blew up before the plan acted
+            observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)
+            result.notes.append("blowup: non-finite state in the observation phase (x_manip zeroed)")
+            result.fault, result.success = "blowup", False
+            result.outcome.update(success=False, fail=True, blowup=True)
         result.x_manip = observation
         return result
 
@@ -476,9 +517,11 @@ class _Episode:
         self.tool_body = self.env.tool._bodies[0]
         self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
         self.spec: StageSpec = type(self.env).stages
+        self.sim_freq = executor.sim_freq
         self._ahead: dict[str, np.ndarray] = {}
         """Targets planned ahead for a later stage (approach by the pregrasp, place and motion by the transport)."""
         self.notes: list[str] = []
+        self.fault = ""
         self.current_target = self._qpos()
         self.root = _pose_matrix(self.art.get_root_pose())
 
@@ -529,7 +572,7 @@ class _Episode:
     def _motion_vector(self) -> np.ndarray:
         """Joint displacement of the motion: its first catalogue template times its amplitude."""
         first = int(np.argmax(self.plb.template_to_motion == self.plan[4]))
-        return self.plb.template_matrix()[first] * MOTION_AMPLITUDES[self.motion]
+        return self.plb.template_matrix()[first] * MOTION_AMPLITUDES[self.motion] * self.spec.motion_scale
 
     def plan_place(self, q_target_now: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(hover, place, strike) joint targets from the measured tool-in-palm transform."""
@@ -575,9 +618,9 @@ class _Episode:
             if self.motion == "finger_squeeze":
                 q_place = q_contact.copy()
                 q_place[_J["ARTz"]] += 0.03
-            height = self._fv_height(q_place, tool_in_palm, fv_center_local, obj_p, approach, support)
-            if best is None or height > best[0] + 1e-6:
-                best = (height, q_place, q_contact, sign)
+            back = self._fv_back(q_place, tool_in_palm, fv_center_local, obj_p, obj_r @ self.spec.push)
+            if best is None or back > best[0] + 1e-6:
+                best = (back, q_place, q_contact, sign)
         if best is None:
             raise ValueError("no reachable place pose: " + "; ".join(self.notes))
         _, q_place, q_contact, sign = best
@@ -589,13 +632,14 @@ class _Episode:
         q_hover[_J["ARTz"]] += self.cfg.hover_height
         return q_hover, q_place, q_strike
 
-    def _fv_height(self, q: np.ndarray, tool_in_palm: np.ndarray, fv_center_local: np.ndarray,
-                   obj_p: np.ndarray, approach: np.ndarray, support: float) -> float:
-        """Clearance of T_fv's leading face from the object along the approach direction at joint targets q."""
+    def _fv_back(self, q: np.ndarray, tool_in_palm: np.ndarray, fv_center_local: np.ndarray,
+                 obj_p: np.ndarray, push: np.ndarray) -> float:
+        """How far T_fv's centre lies behind the object along the motion's direction ``push`` (world) at
+        joint targets q (for the hammer: its height above the nail)."""
         m = self.root @ self.ik.link_pose(q)
         t_tool = m @ tool_in_palm
         c = t_tool[:3, :3] @ fv_center_local + t_tool[:3, 3]
-        return float(np.dot(c - obj_p, approach) - support)
+        return float(np.dot(obj_p - c, push))
 
     def _limits(self) -> tuple[np.ndarray, np.ndarray]:
         lim = np.asarray(self.art.get_qlimit(), dtype=np.float64)[self.perm]
@@ -662,11 +706,14 @@ class _Episode:
                 force, cpos, cnormal = self.sensors.read()
                 tool7 = _sapien_pose7(self.tool_body.get_entity_pose())
                 lin = np.asarray(self.tool_body.get_linear_velocity(), dtype=np.float64)
-                if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(tool7)) and np.all(np.isfinite(qvel))) \
-                        or np.linalg.norm(lin) > cfg.blowup_speed:
-                    blowup = True
-                    reason = f"non-finite or runaway state at frame {frame}"
                 obj_p, obj_r = self.env.object_frame_world()
+                if not all(np.all(np.isfinite(a)) for a in (qpos, qvel, tool7, lin, force, cpos, cnormal, obj_p, obj_r)):
+                    blowup = True
+                    reason = f"blowup: non-finite state at frame {frame} (not recorded)"
+                    break
+                if np.linalg.norm(lin) > cfg.blowup_speed:
+                    blowup = True
+                    reason = f"blowup: tool speed {np.linalg.norm(lin):.1f} m/s at frame {frame}"
                 rec["frame"][k] = frame
                 rec["stage"][k] = stage
                 rec["qpos"][k] = qpos
@@ -692,13 +739,14 @@ class _Episode:
             outcome["success"] = False
             outcome["fail"] = True
             self.notes.append(reason)
+            self.fault = "blowup"
         success = bool(outcome.get("success", False)) and not blowup
-        n_stepped = int(rec["frame"][-1]) + 1 if k else 0
+        n_stepped = frame + 1
         return EpisodeResult(
             plan=self.plan.copy(), outcome=outcome, success=success, anchors_at_grasp=anchors_at_grasp,
             gv_at_grasp=tuple(np.asarray(x).copy() for x in gv_at_grasp), stage_frames=frames,
             wall_time_s=wall, physics_time_s=physics_time, fps=(n if not blowup else n_stepped) / wall if wall > 0 else 0.0,
-            notes=self.notes, **rec,
+            notes=self.notes, fault=self.fault, **rec,
         )
 
     def _stage_trajectory(self, stage: int, n_frames: int, waypoints: dict[int, np.ndarray],
@@ -708,14 +756,18 @@ class _Episode:
         start_q = self.current_target.copy()
         try:
             end_q = self._plan_stage(stage, waypoints, start_q)
-        except ValueError as exc:  # unreachable: hold still, the plan then fails physically
-            self.notes.append(f"{STAGES[stage]}: {exc}")
+            if not np.all(np.isfinite(end_q)):
+                raise ValueError(f"non-finite joint target {np.round(end_q, 4).tolist()}")
+        except PLANNING_ERRORS as exc:  # unreachable: hold still, the plan then fails physically
+            self.notes.append(f"{STAGES[stage]}: {type(exc).__name__}: {exc}")
+            self.fault = self.fault or "unreachable"
             end_q = start_q.copy()
         end_q = np.clip(end_q, lower, upper)
         waypoints[stage] = end_q
         if STAGES[stage] == "motion":
             settle = int(n_frames * self.cfg.strike_settle_frac)
-            ramp_start, ramp_len = settle, max(1, min(self.cfg.strike_ramp_frames, n_frames - settle))
+            ramp = self.cfg.strike_ramp_frames if self.spec.motion_s is None else round(self.spec.motion_s * self.sim_freq)
+            ramp_start, ramp_len = settle, max(1, min(ramp, n_frames - settle))
         elif STAGES[stage] == "grasp":  # per-joint closing windows of the posture
             a, b = GRASP_POSTURES[self.pattern].windows()
             ramp_start, ramp_len = a * n_frames, (b - a) * n_frames

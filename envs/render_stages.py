@@ -184,10 +184,11 @@ def render_stage_pictures(task: str, plan: Any, seed: int, out_dir: str | os.Pat
         path = out / f"{i:02d}_{title}.png"
         _save_png(image, path)
         paths.append(path)
-    descent = result.outcome.get("nail_descent_cm")
+    key = type(env.unwrapped).measure_key
+    measure = result.outcome.get(key)
     labels = [f"{i:02d} {t}" + ("" if frames[t] < 0 else f" (frame {frames[t]})") for i, t in enumerate(titles)]
     suptitle = (f"{task}, seed {seed}, {description}\nsuccess={result.success}"
-                + (f", nail descent {descent:.2f} cm" if isinstance(descent, (int, float)) else ""))
+                + (f", {key.replace('_', ' ')} {measure:.2f}" if isinstance(measure, (int, float)) else ""))
     sheet = contact_sheet(images, labels, out / "stages.png", suptitle=suptitle)
     missing = [s for s, _ in type(env.unwrapped).stages.shares if s not in frames]
     if missing:
@@ -275,7 +276,7 @@ def main(argv: list[str] | None = None) -> None:
     for path in [*pictures.paths, pictures.sheet]:
         print(path)
     result = pictures.result
-    print(f"success={result.success} nail_descent_cm={result.outcome.get('nail_descent_cm')}"
+    print(f"success={result.success} " + " ".join(f"{k}={v}" for k, v in result.outcome.items() if k != "success")
           + (f" notes={result.notes}" if result.notes else ""))
 
 

@@ -7,8 +7,11 @@ has its share of successes (or ``max_attempts`` attempts).
 
 On disk, per shard ``<out>/<task>/shard<k>/``:
 
-* ``attempts.jsonl`` - one line per finished attempt (seed, plan, success, measure), appended
-  and flushed, so the yield per task and per plan dimension can be computed;
+* ``attempts.jsonl`` - one line per finished attempt (seed, plan, success, measure; ``fault`` when the
+  executor ended a failed plan itself, ``error`` with the exception text when the attempt raised), appended
+  and flushed, so the yield per task and per plan dimension, and how often attempts fault or err, can be
+  computed. An attempt that raises (a bug, a PhysX error) is recorded as failed and the shard goes on
+  with a rebuilt environment;
 * ``ep<j>.npz`` - one file per successful attempt (``prl.demo``), written atomically.
 
 Resume: a shard re-reads its ``attempts.jsonl`` and continues after the last finished attempt.
@@ -21,14 +24,19 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from envs.executor import FAULTS
+from envs.trials import error_text
 from prl.constants import EPISODE_FRAMES
 from prl.plb import load_plb
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,8 @@ class ShardResult:
     attempts: int
     successes: int
     demo_paths: tuple[Path, ...]
+    errors: int = 0
+    """Attempts that raised (recorded as failed, with the error text in ``attempts.jsonl``)."""
 
 
 def attempt_seeds(run_seed: int, task: str, shard: int, attempt: int) -> tuple[int, int]:
@@ -115,6 +125,8 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     rows = read_attempts(spec.dir)
     if path.exists():  # rewrite without a torn tail so appends stay line-aligned
         path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for torn in spec.dir.glob(".ep*.npz.tmp"):  # a demo write cut by a kill; its attempt is re-run
+        torn.unlink()
     done = {r["attempt"] for r in rows}
     successes = sum(r["success"] for r in rows)
     attempt = len(rows)
@@ -147,11 +159,21 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                 plan = plb.sample_plan(spec.task, rng)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
-                result = executor.run(plan, seed=scene_seed)
-                if result.success:
-                    save_demo(from_episode(spec.task, scene_seed, text, result, env), demo_path)
-                row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
-                       "success": bool(result.success), "measure": _measure(result.outcome)}
+                row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan]}
+                try:
+                    result = executor.run(plan, seed=scene_seed)
+                    if result.success:
+                        save_demo(from_episode(spec.task, scene_seed, text, result, env), demo_path)
+                except Exception as exc:  # noqa: BLE001 - one attempt's error must not end the run
+                    row |= {"success": False, "measure": float("nan"), "error": error_text(exc)}
+                    _log.warning("%s shard %d attempt %d raised: %s", spec.task, spec.shard, attempt, row["error"])
+                    cleanup.close()  # a fresh environment for the next attempt
+                    cleanup = ExitStack()
+                    env = executor = None
+                else:
+                    row |= {"success": bool(result.success), "measure": _measure(result.outcome)}
+                    if result.fault and not result.success:  # (a demo's row, rebuilt after a kill, has none)
+                        row["fault"] = result.fault
             _append(spec.dir, row)
             successes += row["success"]
             attempt += 1
@@ -163,7 +185,9 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
             bar.close()
         cleanup.close()
     demos = tuple(sorted(spec.dir.glob("ep*.npz")))
-    return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos)
+    errors = sum("error" in r for r in read_attempts(spec.dir))
+    return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos,
+                       errors=errors)
 
 
 def _measure(outcome: dict) -> float:
@@ -174,10 +198,14 @@ def _measure(outcome: dict) -> float:
 
 
 def yield_report(out_dir: Path, task: str) -> dict[str, float]:
-    """Yield (successes / attempts) overall and per plan dimension choice, from the attempt logs."""
+    """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised
+    (``errors``) and that the executor ended itself (``faults/<fault>``), from the attempt logs."""
     rows = [r for d in sorted((Path(out_dir) / task).glob("shard*")) for r in read_attempts(d)]
     report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
     report["yield"] = report["successes"] / report["attempts"] if rows else 0.0
+    report["errors"] = float(sum("error" in r for r in rows))
+    for fault in FAULTS:
+        report[f"faults/{fault}"] = float(sum(r.get("fault") == fault for r in rows))
     plb = load_plb()
     for i, dim in enumerate(plb.dims):
         for c in range(dim.size):

@@ -7,6 +7,7 @@ Every outcome is the task's ``evaluate()`` of the simulated state.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -16,6 +17,8 @@ from tqdm.auto import tqdm
 
 from prl.constants import EPISODE_FRAMES
 from prl.plb import load_plb
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -34,6 +37,10 @@ class TrialOutcome:
     """The task's measured quantity (e.g. nail descent in cm)."""
     fail: bool
     """The task's failure flag (tool lost, NaN)."""
+    fault: str = ""
+    """The executor's fault if it ended the plan itself (``envs.executor.FAULTS``), else ``""``."""
+    error: str = ""
+    """The exception text if the attempt raised (a bug, a PhysX error): then a failure, and the trials went on."""
 
 
 def plan_set(task: str, kind: str, n: int, seed: int) -> list[tuple[int, ...]]:
@@ -62,28 +69,58 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
                progress: bool = True, desc: str | None = None) -> list[TrialOutcome]:
     """On the scene of each seed: observe, let ``policy`` choose a plan, execute it; one outcome each, in order.
 
-    ``randomization`` scales the task's randomisation ranges (1: the training ranges).
+    ``randomization`` scales the task's randomisation ranges (1: the training ranges). An attempt that
+    raises (a bug, a PhysX error) is a failed outcome with the error text in ``error``, logged as a
+    warning; the environment is rebuilt and the trials go on.
     """
     from envs.executor import ExecutorConfig, PlanExecutor
-    from envs.tasks import fast_resets, make_env
+    from envs.tasks import fast_resets, make_env, task_class
 
-    env = make_env(task, randomization=randomization)
+    key = task_class(task).measure_key
+    env = executor = None
+    out: list[TrialOutcome] = []
     try:
         with fast_resets():
-            executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames))
-            key = env.unwrapped.measure_key
-            out: list[TrialOutcome] = []
             bar = tqdm(list(seeds), desc=desc or f"{task} trials", disable=not progress, unit="plan")
             for i, seed in enumerate(bar):
-                x_manip = executor.observe(seed=int(seed))
-                result = executor.run(policy(i, env.unwrapped, x_manip))
+                if env is None:
+                    env = make_env(task, randomization=randomization)
+                    executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames))
+                plan: Sequence[int] = ()
+                try:
+                    x_manip = executor.observe(seed=int(seed))
+                    plan = policy(i, env.unwrapped, x_manip)
+                    result = executor.run(plan)
+                except Exception as exc:  # noqa: BLE001 - one attempt's error must not end the trials
+                    out.append(failed_outcome(task, int(seed), plan, exc))
+                    _log.warning("%s trial %d (seed %d) raised: %s", task, i, seed, out[-1].error)
+                    env.close()
+                    env = None
+                    continue
                 out.append(TrialOutcome(task=task, seed=int(seed), plan=tuple(int(v) for v in result.plan),
                                         success=bool(result.success), measure=float(result.outcome[key]),
-                                        fail=bool(result.outcome.get("fail", False))))
+                                        fail=bool(result.outcome.get("fail", False)), fault=result.fault))
                 bar.set_postfix(success_rate=f"{np.mean([o.success for o in out]):.2f}")
             return out
     finally:
-        env.close()
+        if env is not None:
+            env.close()
+
+
+def error_text(exc: BaseException) -> str:
+    """``Type: message (file:line)`` of an exception, for attempt logs."""
+    import traceback
+    from pathlib import Path
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" ({Path(frames[-1].filename).name}:{frames[-1].lineno})" if frames else ""
+    return f"{type(exc).__name__}: {exc}{where}"
+
+
+def failed_outcome(task: str, seed: int, plan: Sequence[int], exc: BaseException) -> TrialOutcome:
+    """The outcome of an attempt that raised: a failure with measure 0 and the error text."""
+    return TrialOutcome(task=task, seed=seed, plan=tuple(int(v) for v in plan), success=False, measure=0.0,
+                        fail=True, error=error_text(exc))
 
 
 def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,

@@ -38,8 +38,11 @@ def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]
         rates[kind] = k / n
         mlflow.log_metrics({f"{task}/{split}/{kind}_success_rate": k / n,
                             f"{task}/{split}/{kind}_ci95_low": lo, f"{task}/{split}/{kind}_ci95_high": hi})
-        print(f"{task} ({split}) {kind:<11} {format_rate(k, n)}")
-    mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure}
+        errors = sum(bool(o.error) for o in outs)
+        mlflow.log_metric(f"{task}/{split}/{kind}_errors", errors)
+        print(f"{task} ({split}) {kind:<11} {format_rate(k, n)}" + (f" ({errors} raised)" if errors else ""))
+    mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure,
+                             "fault": o.fault, "error": o.error}
                             for o in outs] for kind, outs in out.items()}, f"{task}_{split}_rn_eval.json")
     return rates
 

@@ -49,8 +49,9 @@ def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, 
         mlflow.log_metric(f"{task}/{kind}/success_rate", rates[kind])
         mlflow.log_metric(f"{task}/{kind}/mean_{measure_key}", float(np.mean([o.measure for o in outcomes])))
         mlflow.log_metric(f"{task}/{kind}/n", len(outcomes))
+        mlflow.log_metric(f"{task}/{kind}/errors", sum(bool(o.error) for o in outcomes))
     rows = [{"kind": k, "seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure,
-             "fail": o.fail} for k, v in outcomes_by_kind.items() for o in v]
+             "fail": o.fail, "fault": o.fault, "error": o.error} for k, v in outcomes_by_kind.items() for o in v]
     mlflow.log_dict({"task": task, "measure": measure_key, "trials": rows}, f"{task}_trials.json")
     fig = plot_trial_rates(task, rates, {k: len(v) for k, v in outcomes_by_kind.items()},
                            {k: [o.measure for o in v] for k, v in outcomes_by_kind.items()}, measure_key,
@@ -216,7 +217,9 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
                 mlflow.log_metrics({f"{task}/{k}": v for k, v in report.items()})
                 mlflow.log_dict(report, f"{task}_yield.json")
                 print(f"{task}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
-                      f"(yield {report['yield']:.2f})")
+                      f"(yield {report['yield']:.2f}; {int(report['errors'])} raised, "
+                      + ", ".join(f"{int(v)} {k.split('/')[1]}" for k, v in report.items() if k.startswith("faults/"))
+                      + ")")
             new = sum(r.successes for r in shards) - already
             mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
             mlflow.log_param("demo_dir", str(demo_dir))

@@ -159,11 +159,54 @@ def hammer_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
     return _union([head, shank])
 
 
+# ------------------------------------------------------------------ sweep task
+# nominal broom and debris geometry: the one definition; envs/tasks/sweep.py builds its scene from it
+BROOM_HANDLE_RADIUS = 0.015
+"""Nominal radius of the broom's handle capsule (m)."""
+BROOM_HANDLE_HALF_LENGTH = 0.13
+"""Nominal half-length of the handle capsule's cylindrical part (m), along the broom's local X."""
+BROOM_HEAD_HALF = (0.02, 0.015, 0.07)
+"""Nominal half extents (m) of the head block in the broom frame: along the handle (its -X face is the
+bottom when the broom stands), thickness (the pushing faces) and width."""
+DEBRIS_CUBE_SIZE_RANGE = (0.015, 0.02)
+"""Edge length (m) of a debris cube."""
+SWEEP_CLEARANCE = 0.003
+"""Height (m) of the sweep task's object frame above the table (the head's bottom is planned there)."""
+
+
+def sweep_tool_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The broom of ``envs/tasks/sweep.py`` (``_build_broom``) in its actor frame (metres): a capsule of
+    radius ``handle_radius`` with cylindrical half-length ``handle_half_length`` along X, centred at the
+    origin, and a head box of half extents (``head_half_x``, ``head_half_y``, ``head_half_z``) centred at
+    ``x = -(handle_half_length + head_half_x)``. Bounding box: x in ``[-hl - 2 hx, hl + r]``."""
+    r, hl, hx, hy, hz = _require(params, ("handle_radius", "handle_half_length", "head_half_x", "head_half_y",
+                                          "head_half_z"))
+    head = trimesh.creation.box(extents=[2 * hx, 2 * hy, 2 * hz])
+    head.apply_translation([-(hl + hx), 0.0, 0.0])
+    return _union([_capsule(r, hl, "x"), head])
+
+
+def sweep_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The debris cubes of ``envs/tasks/sweep.py`` (``_build_debris``) as placed at reset, in the task's
+    object frame (origin on the sweep line's centre, ``SWEEP_CLEARANCE`` above the table, axes = world)."""
+    (n,) = _require(params, ("n_cubes",))
+    origin = np.array([float(params["line_x"]), float(params["line_y"]), SWEEP_CLEARANCE])
+    parts = []
+    for i in range(int(n)):
+        (size,) = _require(params, (f"cube{i}_size",))
+        cube = trimesh.creation.box(extents=[size] * 3)
+        cube.apply_transform(trimesh.transformations.rotation_matrix(float(params[f"cube{i}_yaw"]), [0, 0, 1]))
+        cube.apply_translation(np.array([params[f"cube{i}_x"], params[f"cube{i}_y"], size / 2]) - origin)
+        parts.append(cube)
+    return _union(parts)
+
+
 MeshBuilder = Callable[[Mapping[str, float]], trimesh.Trimesh]
 
 #: Per task: (tool mesh builder, object mesh builder), each taking the env's ``scene_params``.
 MESH_BUILDERS: dict[str, tuple[MeshBuilder, MeshBuilder]] = {
     "hammer": (hammer_tool_mesh, hammer_object_mesh),
+    "sweep": (sweep_tool_mesh, sweep_object_mesh),
 }
 
 
@@ -253,7 +296,7 @@ def sample_points(mesh: trimesh.Trimesh, n: int, seed: int) -> np.ndarray:
 
 #: Categories of ``random_shape``, in label order (the PointNet's class index).
 SHAPE_CATEGORIES: tuple[str, ...] = (
-    "box", "cylinder", "capsule", "sphere", "cone", "hammer", "nail", "tweezers",
+    "box", "cylinder", "capsule", "sphere", "cone", "hammer", "nail", "tweezers", "broom", "debris",
 )
 
 
@@ -308,6 +351,27 @@ def _random_tweezers(rng: np.random.Generator) -> trimesh.Trimesh:
     return _union(parts)
 
 
+def _random_broom(rng: np.random.Generator) -> trimesh.Trimesh:
+    handle = rng.uniform(0.7, 1.2, size=2)  # the nominal broom is 31 cm long: longer ones leave SIZE_RANGE_M
+    head = _scale_factors(rng, 3)
+    return sweep_tool_mesh({
+        "handle_radius": BROOM_HANDLE_RADIUS * handle[0], "handle_half_length": BROOM_HANDLE_HALF_LENGTH * handle[1],
+        **{f"head_half_{axis}": BROOM_HEAD_HALF[i] * head[i] for i, axis in enumerate("xyz")},
+    })
+
+
+def _random_debris(rng: np.random.Generator) -> trimesh.Trimesh:
+    """3 .. 10 cubes of 1 .. 3 cm, each turned about Z, on a 4 x 4 grid of 3.5 cm slots (they never overlap)."""
+    n = int(rng.integers(3, 11))
+    params: dict[str, float] = {"n_cubes": n, "line_x": 0.0, "line_y": 0.0}
+    for i, slot in enumerate(rng.permutation(16)[:n]):
+        row, col = divmod(int(slot), 4)
+        size = rng.uniform(0.01, 0.03)
+        params |= {f"cube{i}_size": size, f"cube{i}_yaw": rng.uniform(-np.pi / 4, np.pi / 4),
+                   f"cube{i}_x": -0.035 * (row + 0.5), f"cube{i}_y": 0.035 * (col - 1.5)}
+    return sweep_object_mesh(params)
+
+
 def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
     """A random mesh of ``category`` (one of ``SHAPE_CATEGORIES``), in metres, in a canonical frame.
 
@@ -320,7 +384,9 @@ def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
     * ``hammer`` / ``nail``: the env's builders with the nominal sizes scaled, half the time by one
       factor in the env's ``SIZE_SCALE_RANGE`` (+-15 %), else by independent factors per parameter in
       ``WIDE_SCALE_RANGE`` (0.6 .. 1.4, unseen proportions; hammers then reach ~36 cm);
-    * ``tweezers``: two prongs 2 .. 20 cm long, 2 .. 12 mm wide, 2 .. 6 mm thick, tips 2 mm .. 4 cm apart.
+    * ``tweezers``: two prongs 2 .. 20 cm long, 2 .. 12 mm wide, 2 .. 6 mm thick, tips 2 mm .. 4 cm apart;
+    * ``broom``: the sweep task's broom, its head scaled like ``hammer``, its handle by 0.7 .. 1.2;
+    * ``debris``: 3 .. 10 cubes of 1 .. 3 cm in a patch (the sweep task's object).
     """
     lo, hi = SIZE_RANGE_M
     if category == "box":
@@ -341,4 +407,8 @@ def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
         return _random_nail(rng)
     if category == "tweezers":
         return _random_tweezers(rng)
+    if category == "broom":
+        return _random_broom(rng)
+    if category == "debris":
+        return _random_debris(rng)
     raise ValueError(f"unknown shape category {category!r}; known: {', '.join(SHAPE_CATEGORIES)}")

@@ -13,6 +13,7 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 pytest.importorskip("mani_skill")
 
 from envs.executor import STAGES, ExecutorConfig, PlanExecutor
+from honesty import assert_tool_held_by_contact_only
 from prl.constants import EPISODE_FRAMES, SENSOR_NAMES
 
 EXPERT = [0, 3, 2, 0, 0, 1]
@@ -108,22 +109,8 @@ def test_wrong_plan_fails(executor):
 @pytest.mark.sim
 def test_no_constraint_between_hand_and_tool(executor, expert_result):
     env = executor.env
-    tool_body = env.tool._bodies[0]
-    hand_links = {link.name for link in env.agent.robot.get_links()}
-    # the tool is a free dynamic body: not kinematic, not part of any articulation
-    assert not tool_body.kinematic
-    assert not hasattr(tool_body, "articulation")
-    for articulation in env.scene.px.get_articulation_link_components():
-        assert articulation.entity is not tool_body.entity
-    # no joints/drives other than the articulations' own: the scene holds no extra components
-    # on the tool's entity besides its rigid body (and render body)
-    names = {type(c).__name__ for c in tool_body.entity.components}
-    assert names <= {"PhysxRigidDynamicComponent", "RenderBodyComponent"}, names
-    for entity in env.scene.sub_scenes[0].entities:
-        for component in entity.components:
-            kind = type(component).__name__
-            assert "Joint" not in kind and "Drive" not in kind and "Gear" not in kind, (entity.name, kind)
-    assert SENSOR_NAMES[0] in hand_links
+    assert_tool_held_by_contact_only(env)
+    assert SENSOR_NAMES[0] in {link.name for link in env.agent.robot.get_links()}
 
 
 @pytest.mark.sim
@@ -195,6 +182,7 @@ def test_unplannable_transport_ends_as_a_failed_episode(executor, monkeypatch):
     monkeypatch.setattr(executor_module._Episode, "plan_place", unreachable)
     r = executor.run(EXPERT, seed=3)
     assert not r.success
-    assert any(n.startswith("transport: no reachable place pose") for n in r.notes), r.notes
-    assert any(n.startswith("place: no place target") for n in r.notes), r.notes
-    assert any(n.startswith("motion: no motion target") for n in r.notes), r.notes
+    assert any(n.startswith("transport: ValueError: no reachable place pose") for n in r.notes), r.notes
+    assert any(n.startswith("place: ValueError: no place target") for n in r.notes), r.notes
+    assert any(n.startswith("motion: ValueError: no motion target") for n in r.notes), r.notes
+    assert r.fault == "unreachable"

@@ -61,14 +61,15 @@ def test_encoder_shapes_and_feature_is_the_layer_before_the_heads():
 
 def test_shape_dataset_balanced_deterministic_and_unscaled():
     cfg = P.PointNetConfig(**TINY)
-    pts, cat, ext = P.make_shape_dataset(cfg, seed=11, n=32)
-    assert pts.shape == (32, 64, 3) and pts.dtype == np.float32
-    assert cat.dtype == np.int64 and ext.shape == (32, 3)
+    n = 4 * len(cfg.categories)
+    pts, cat, ext = P.make_shape_dataset(cfg, seed=11, n=n)
+    assert pts.shape == (n, 64, 3) and pts.dtype == np.float32
+    assert cat.dtype == np.int64 and ext.shape == (n, 3)
     assert np.bincount(cat, minlength=len(cfg.categories)).tolist() == [4] * len(cfg.categories)
-    again = P.make_shape_dataset(cfg, seed=11, n=32)
+    again = P.make_shape_dataset(cfg, seed=11, n=n)
     np.testing.assert_array_equal(pts, again[0])
     np.testing.assert_array_equal(cat, again[1])
-    assert not np.array_equal(pts, P.make_shape_dataset(cfg, seed=12, n=32)[0])
+    assert not np.array_equal(pts, P.make_shape_dataset(cfg, seed=12, n=n)[0])
     # the clouds keep their size: their spread follows the bounding-box extents
     spread = pts.max(axis=1) - pts.min(axis=1)
     np.testing.assert_allclose(spread, ext, rtol=0.35, atol=1e-3)

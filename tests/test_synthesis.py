@@ -97,7 +97,9 @@ def test_fast_resets_freezes_the_heap_and_always_unfreezes() -> None:
         frozen = gc.get_freeze_count()
         with pytest.raises(RuntimeError, match="boom"), fast_resets():
             raise RuntimeError("boom")
-        assert gc.get_freeze_count() == frozen  # the inner block left the outer one's freeze alone
+        # the inner block left the outer one's freeze alone (neither unfroze the heap nor froze more); a frozen
+        # object may still be freed by its refcount meanwhile, so the count can drop by a few
+        assert frozen - 50 <= gc.get_freeze_count() <= frozen
     assert gc.get_freeze_count() == 0
     with pytest.raises(KeyError), fast_resets():
         raise KeyError("x")

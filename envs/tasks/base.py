@@ -143,9 +143,16 @@ class PRLTaskEnv(BaseEnv):
         ``randomization`` = 1 gives the training ranges; e.g. 2 doubles every range's half-width (a
         harder split with values the training scenes never had). The same seed maps to the same
         relative position inside the range, whatever the scale.
+
+        A range of positive values (``low > 0``: sizes, masses, frictions, forces) stays positive: a
+        widened lower end stops at ``low / randomization`` (at scale 4, a 0.2-0.45 kg range becomes
+        0.05-0.825 kg, not -0.175-0.825 kg), so every scale builds a physical scene.
         """
         centre, half = (low + high) / 2, (high - low) / 2 * self.randomization
-        return float(rng.uniform(centre - half, centre + half))
+        lower = centre - half
+        if low > 0 and self.randomization > 1:
+            lower = max(lower, low / self.randomization)
+        return float(rng.uniform(lower, centre + half))
 
     def _scene_rng(self) -> np.random.RandomState:
         """The episode's seeded generator (ManiSkill's per-episode RNG of environment 0)."""
