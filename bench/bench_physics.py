@@ -13,7 +13,7 @@ several physics settings ``<Hz>/<position iterations>`` over the same simulated 
 setting's successes are compared with a converged reference (the first setting). Results are appended
 per pair to ``<out>/<setting>.jsonl``, so a killed run resumes where it stopped.
 
-    python -m bench.bench_physics cost [--rounds 12] [--settings 500/25,250/12]
+    python -m bench.bench_physics cost [--rounds 12] [--settings 500/25,250/12] [--tasks hammer,sweep]
     python -m bench.bench_physics fidelity [--pairs 210] [--settings 1000/50,500/25,250/12] [--out DIR]
 """
 
@@ -68,7 +68,7 @@ def yardstick_seconds(env: Any, actions: np.ndarray) -> float:
     return time.perf_counter() - t0
 
 
-def cost(rounds: int, settings: list[tuple[int, int] | None]) -> None:
+def cost(rounds: int, settings: list[tuple[int, int] | None], tasks: tuple[str, ...] = ("hammer",)) -> None:
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  (registers PickCube-v1)
 
@@ -79,37 +79,44 @@ def cost(rounds: int, settings: list[tuple[int, int] | None]) -> None:
     stick = gym.make("PickCube-v1", num_envs=1, sim_backend="physx_cpu", obs_mode="state", render_mode=None)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, size=(YARDSTICK_STEPS, *stick.action_space.shape)).astype(np.float32)
-    plans = [p for pair in zip(plan_set("hammer", "expert", rounds, 0), plan_set("hammer", "prior", rounds, 1))
-             for p in pair]
+    plans = {task: [p for pair in zip(plan_set(task, "expert", rounds, 0), plan_set(task, "prior", rounds, 1))
+                    for p in pair] for task in tasks}
     runners = []
-    for setting in settings:
-        env = make_task_env("hammer", setting)
-        runners.append((setting, env, PlanExecutor(env, ExecutorConfig(record_every=5))))
+    for task in tasks:
+        for setting in settings:
+            env = make_task_env(task, setting)
+            runners.append((task, setting, env, PlanExecutor(env, ExecutorConfig(record_every=5))))
     yard: list[float] = []
-    per: dict[Any, list[float]] = {s: [] for s in settings}
+    per: dict[Any, list[float]] = {(t, s): [] for t, s, _, _ in runners}
     with fast_resets():
-        for _, _, executor in runners:  # warm-up: imports, IK model, first scene
-            executor.run(plans[0], seed=999)
+        for task, _, _, executor in runners:  # warm-up: imports, IK model, first scene
+            executor.run(plans[task][0], seed=999)
         yardstick_seconds(stick, actions[:20])
-        for i, plan in enumerate(plans):
+        for i in range(2 * rounds):
             order = list(range(len(runners) + 1))
             order = order[i % len(order):] + order[: i % len(order)]
             for k in order:
                 if k == len(runners):
                     yard.append(yardstick_seconds(stick, actions))
                     continue
-                setting, _, executor = runners[k]
+                task, setting, _, executor = runners[k]
                 t0 = time.perf_counter()
-                executor.run(plan, seed=10_000 + i)
-                per[setting].append(time.perf_counter() - t0)
+                executor.run(plans[task][i], seed=10_000 + i)
+                per[task, setting].append(time.perf_counter() - t0)
     y = statistics.median(yard)
     print(f"yardstick PickCube-v1, {YARDSTICK_STEPS} env.step (median of {len(yard)}): {y:.3f} s")
-    for setting, _, executor in runners:
+    ratios = {}
+    for task, setting, _, executor in runners:
         name = "pipeline" if setting is None else f"{setting[0]}/{setting[1]}"
-        a = statistics.median(per[setting])
-        print(f"hammer attempt, {name:>8} ({executor.config.n_frames} frames, {executor.sim_freq} Hz): "
-              f"median {a:.3f} s over {len(per[setting])} -> ratio {a / y:.2f}")
-    for _, env, _ in runners:
+        a = statistics.median(per[task, setting])
+        ratios[task, setting] = a / y
+        print(f"{task} attempt, {name:>8} ({executor.config.n_frames} frames, {executor.sim_freq} Hz): "
+              f"median {a:.3f} s over {len(per[task, setting])} -> ratio {a / y:.2f}")
+    for task in tasks[1:]:
+        for setting in settings:
+            print(f"{task} / {tasks[0]} attempt cost ({'pipeline' if setting is None else setting}): "
+                  f"{ratios[task, setting] / ratios[tasks[0], setting]:.2f}x")
+    for _, _, env, _ in runners:
         env.close()
     stick.close()
 
@@ -205,10 +212,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pairs", type=int, default=210, help="fidelity: (scene, plan) pairs")
     parser.add_argument("--settings", default=None, help="comma-separated <Hz>/<iterations>")
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/physics_fidelity"))
+    parser.add_argument("--tasks", default="hammer", help="cost: comma-separated tasks, the first is the reference")
     args = parser.parse_args(argv)
     if args.what == "cost":
         extra = [parse_setting(t) for t in args.settings.split(",")] if args.settings else []
-        cost(args.rounds, [None, *extra])
+        cost(args.rounds, [None, *extra], tuple(t.strip() for t in args.tasks.split(",") if t.strip()))
         return
     settings = [parse_setting(t) for t in (args.settings or "1000/50,500/25,250/12").split(",")]
     if args.what == "fidelity":

@@ -6,7 +6,7 @@ its reason), never as an exception, and its recordings must be finite. ``fuzz_ta
 (``envs.executor.FAULTS``), exceptions (with their text) and non-finite recordings. After an exception the
 environment is rebuilt, so one bad pair does not spoil the next.
 
-    python -m envs.fuzz --tasks hammer --pairs 300 --randomization 4 --out docs/fuzz.json
+    python -m envs.fuzz --tasks hammer,sweep --pairs 500 --randomization 4 --out docs/fuzz.json
 """
 
 from __future__ import annotations
@@ -108,9 +108,12 @@ def main(argv: list[str] | None = None) -> None:
               f"exceptions {len(report.exceptions)}, non-finite recordings {len(report.nonfinite)}")
         for line in report.exceptions + report.nonfinite:
             print("  ", line)
-    if args.out is not None:
+    if args.out is not None:  # one file for all tasks: a task's new report replaces its old one
+        kept = json.loads(args.out.read_text()) if args.out.exists() else []
+        done = {r.task for r in reports}
+        rows = [r for r in kept if r["task"] not in done] + [asdict(r) for r in reports]
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps([asdict(r) for r in reports], indent=1) + "\n")
+        args.out.write_text(json.dumps(sorted(rows, key=lambda r: r["task"]), indent=1) + "\n")
 
 
 if __name__ == "__main__":

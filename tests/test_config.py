@@ -25,7 +25,7 @@ def test_quick_and_paper_profiles() -> None:
     ({"rn_epochs": 0}, "rn_epochs must be a positive integer, got 0"),
     ({"rn_val_fraction": 1.0}, r"rn_val_fraction must be a number in \(0, 1\), got 1.0"),
     ({"wide_randomization": 0.5}, "wide_randomization must be a number >= 1, got 0.5"),
-    ({"demos_per_task": 2}, "the RN needs at least 3 demos"),
+    ({"demos_per_task": 1, "tasks": ("hammer",)}, "the RN needs at least 3 demos"),
 ])
 def test_bad_values_are_named(overrides: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):

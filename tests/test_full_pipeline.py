@@ -67,11 +67,12 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert report.n_episodes == 6 and report.n_frames == export["metrics.frames"] > 0
     assert export["params.dataset_digest"] and len(export["params.dataset_digest"]) == 16
 
-    # RN stages: two scenes trained on, one held out; the registered model reloads to the same logits
+    # RN stages: scenes split by seed into train and held out; the registered model reloads to the same logits
     rn = children[children["tags.mlflow.runName"] == "rn-train"].iloc[0]
     assert rn["metrics.n_train"] + rn["metrics.n_val"] == 6.0 and rn["metrics.n_val"] >= 1.0
     assert rn["metrics.registered_reload_max_abs_diff"] == 0.0
-    assert 1.0 <= rn["metrics.hammer/plan_library_size"] <= 2.0  # distinct plans of the two training demos
+    for task in ("hammer", "sweep"):  # distinct plans of the task's (at most 3) training demos
+        assert 1.0 <= rn[f"metrics.{task}/plan_library_size"] <= 3.0
     assert 0.0 <= rn["metrics.val_accuracy/grasp_pattern"] <= 1.0
     history = mlflow.tracking.MlflowClient().get_metric_history(rn["run_id"], "rn/loss_ce")
     assert [m.step for m in history] == [0, 1, 2]

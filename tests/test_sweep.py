@@ -124,3 +124,15 @@ def test_open_fingers_never_sweep(executor, monkeypatch) -> None:
         assert not result.success and result.outcome["cubes_in_zone"] == 0, result.outcome
         # the broom never left the table's neighbourhood of its rack: it was not carried
         assert np.max(result.tool_pose[:, 2]) < 0.2
+
+
+@pytest.mark.sim
+def test_bad_input_names_the_bad_value(executor) -> None:
+    from envs.tasks import make_env
+
+    with pytest.raises(ValueError, match="unknown task 'swep'"):
+        make_env("swep")
+    with pytest.raises(ValueError, match="9"):
+        executor.run((0, 3, 2, 0, 2, 9), seed=1)
+    with pytest.raises(ValueError, match="randomization must be a positive number, got -1"):
+        make_env("sweep", randomization=-1)
