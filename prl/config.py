@@ -9,7 +9,7 @@ from pathlib import Path
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 
 #: Tasks whose simulation exists in ``envs/tasks`` today.
-SIMULATED_TASKS: tuple[str, ...] = ("hammer", "sweep")
+SIMULATED_TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew")
 
 
 class ConfigError(ValueError):

@@ -201,12 +201,41 @@ def sweep_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
     return _union(parts)
 
 
+# ------------------------------------------------------------------ unscrew task
+CAP_TOP_PROUD = 0.001
+"""The cap's smooth top disc stands this far above its side (envs/tasks/unscrew.py)."""
+CAP_CENTER_HEIGHT = 0.09
+"""Height (m) of the cap's centre above the table."""
+NECK_RADIUS = 0.012
+"""Radius (m) of the bottle's neck under the cap."""
+
+
+def unscrew_tool_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The cap of ``envs/tasks/unscrew.py`` in its link frame: a cylinder of radius ``cap_radius`` and
+    half-height ``cap_half_height`` along local Y, and the smooth top disc (3 mm narrower) on its +Y face."""
+    r, hh = _require(params, ("cap_radius", "cap_half_height"))
+    top = _translate(_cylinder(r - 0.003, CAP_TOP_PROUD / 2 + 0.0005, "y"), (0.0, hh + CAP_TOP_PROUD / 2 - 0.0005, 0.0))
+    return _union([_cylinder(r, hh, "y"), top])
+
+
+def unscrew_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The bottle of ``envs/tasks/unscrew.py`` (body and neck) in the task's object frame: origin at the cap's
+    seat on the neck, Z up along the bottle's axis."""
+    rb, hb, hh = _require(params, ("body_radius", "body_height", "cap_half_height"))
+    seat = CAP_CENTER_HEIGHT - hh
+    body = _translate(_cylinder(rb, hb / 2, "z"), (0.0, 0.0, hb / 2 - seat))
+    neck_half = (seat - hb) / 2 + 0.002
+    neck = _translate(_cylinder(NECK_RADIUS, neck_half, "z"), (0.0, 0.0, hb + (seat - hb) / 2 - seat))
+    return _union([body, neck])
+
+
 MeshBuilder = Callable[[Mapping[str, float]], trimesh.Trimesh]
 
 #: Per task: (tool mesh builder, object mesh builder), each taking the env's ``scene_params``.
 MESH_BUILDERS: dict[str, tuple[MeshBuilder, MeshBuilder]] = {
     "hammer": (hammer_tool_mesh, hammer_object_mesh),
     "sweep": (sweep_tool_mesh, sweep_object_mesh),
+    "unscrew": (unscrew_tool_mesh, unscrew_object_mesh),
 }
 
 
@@ -296,7 +325,7 @@ def sample_points(mesh: trimesh.Trimesh, n: int, seed: int) -> np.ndarray:
 
 #: Categories of ``random_shape``, in label order (the PointNet's class index).
 SHAPE_CATEGORIES: tuple[str, ...] = (
-    "box", "cylinder", "capsule", "sphere", "cone", "hammer", "nail", "tweezers", "broom", "debris",
+    "box", "cylinder", "capsule", "sphere", "cone", "hammer", "nail", "tweezers", "broom", "debris", "bottle",
 )
 
 
@@ -372,6 +401,12 @@ def _random_debris(rng: np.random.Generator) -> trimesh.Trimesh:
     return sweep_object_mesh(params)
 
 
+def _random_bottle(rng: np.random.Generator) -> trimesh.Trimesh:
+    """The unscrew task's bottle (body and neck) with body radius 1.5 .. 5 cm and height 2 .. 7 cm."""
+    return unscrew_object_mesh({"body_radius": rng.uniform(0.015, 0.05), "body_height": rng.uniform(0.02, 0.07),
+                                "cap_half_height": rng.uniform(0.008, 0.015)})
+
+
 def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
     """A random mesh of ``category`` (one of ``SHAPE_CATEGORIES``), in metres, in a canonical frame.
 
@@ -386,7 +421,8 @@ def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
       ``WIDE_SCALE_RANGE`` (0.6 .. 1.4, unseen proportions; hammers then reach ~36 cm);
     * ``tweezers``: two prongs 2 .. 20 cm long, 2 .. 12 mm wide, 2 .. 6 mm thick, tips 2 mm .. 4 cm apart;
     * ``broom``: the sweep task's broom, its head scaled like ``hammer``, its handle by 0.7 .. 1.2;
-    * ``debris``: 3 .. 10 cubes of 1 .. 3 cm in a patch (the sweep task's object).
+    * ``debris``: 3 .. 10 cubes of 1 .. 3 cm in a patch (the sweep task's object);
+    * ``bottle``: the unscrew task's bottle (body and neck), body radius 1.5 .. 5 cm, height 2 .. 7 cm.
     """
     lo, hi = SIZE_RANGE_M
     if category == "box":
@@ -411,4 +447,6 @@ def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
         return _random_broom(rng)
     if category == "debris":
         return _random_debris(rng)
+    if category == "bottle":
+        return _random_bottle(rng)
     raise ValueError(f"unknown shape category {category!r}; known: {', '.join(SHAPE_CATEGORIES)}")

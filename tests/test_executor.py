@@ -162,12 +162,26 @@ def test_hammer_declares_its_stages_as_before():
     ((("pregrasp", 1), ("approach", 0), ("grasp", 1), ("motion", 1)), {}, "positive.*approach"),
     ((("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1), ("post_lift", 1)), {}, "post_lift_height"),
     ((("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1)), {"fv_approach": (0, 0, 2)}, "unit vector"),
+    ((("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1)), {"motion_dir": (1, 1, 0)}, "motion_dir"),
+    ((("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1)), {"motion_scale": 0}, "motion_scale must be > 0"),
+    ((("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1)), {"motion_s": -0.5}, "motion_s must be > 0"),
 ])
 def test_stage_spec_rejects_bad_declarations(shares, extra, match):
     from envs.executor import StageSpec
 
     with pytest.raises(ValueError, match=match):
         StageSpec(shares=shares, **extra)
+
+
+def test_motion_direction_defaults_to_onto_the_object():
+    from envs.executor import StageSpec
+    from envs.tasks import task_class
+
+    spec = StageSpec(shares=(("pregrasp", 1), ("approach", 1), ("grasp", 1), ("motion", 1)), fv_approach=(0, 1, 0))
+    assert spec.push.tolist() == [0.0, -1.0, 0.0]  # against the approach side: onto the object
+    assert task_class("hammer").stages.push.tolist() == [0.0, 0.0, -1.0]  # the strike comes down
+    sweep = task_class("sweep").stages
+    assert sweep.push.tolist() == [1.0, 0.0, 0.0] and sweep.motion_scale == 3.0  # towards the zone
 
 
 @pytest.mark.sim
