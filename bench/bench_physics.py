@@ -37,7 +37,6 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 import numpy as np
 
 YARDSTICK_STEPS = 400
-PLAN_KINDS = ("expert", "prior", "uniform")
 
 
 def parse_setting(text: str) -> tuple[int, int]:
@@ -123,7 +122,7 @@ def cost(rounds: int, settings: list[tuple[int, int] | None], tasks: tuple[str, 
 
 def pairs(n: int, seed: int = 0) -> list[tuple[int, str, tuple[int, ...]]]:
     """``n`` fixed (scene seed, kind, plan) pairs, kinds in turn."""
-    from envs.trials import plan_set
+    from envs.trials import PLAN_KINDS, plan_set
 
     per_kind = {k: plan_set("hammer", k, n, seed + i) for i, k in enumerate(PLAN_KINDS)}
     return [(20_000 + i, PLAN_KINDS[i % 3], per_kind[PLAN_KINDS[i % 3]][i]) for i in range(n)]
@@ -178,6 +177,8 @@ def fidelity(n: int, settings: list[tuple[int, int]], out: Path) -> None:
 
 
 def report(out: Path, settings: list[tuple[int, int]], n: int) -> None:
+    from envs.trials import PLAN_KINDS
+
     rows = {}
     for s in settings:
         path = out / f"{s[0]}-{s[1]}.jsonl"

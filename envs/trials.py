@@ -43,6 +43,20 @@ class TrialOutcome:
     """The exception text if the attempt raised (a bug, a PhysX error): then a failure, and the trials went on."""
 
 
+PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
+"""The plan kinds of the trials: the task's expert plan, plans sampled from its PLB prior, uniform plans."""
+
+
+def kind_seed(run_seed: int, kind: str) -> int:
+    """The seed of one plan kind's trials in a run (the pipeline's trials stage and ``python -m envs.trials``)."""
+    return run_seed + 7919 * PLAN_KINDS.index(kind)
+
+
+def trial_scene_seeds(seed: int, n: int) -> list[int]:
+    """The ``n`` scene seeds of a trial set seeded by ``seed``."""
+    return [seed * 100_003 + i for i in range(n)]
+
+
 def plan_set(task: str, kind: str, n: int, seed: int) -> list[tuple[int, ...]]:
     """``n`` plans of a kind: 'expert' (the task's expert plan repeated), 'prior' (sampled from the
     task's PLB prior) or 'uniform' (uniform over the Representation Space), seeded by ``seed``."""
@@ -135,3 +149,31 @@ def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], 
 def success_rate(outcomes: Sequence[TrialOutcome]) -> float:
     """Fraction of successful outcomes (0.0 for none)."""
     return float(np.mean([o.success for o in outcomes])) if outcomes else 0.0
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m envs.trials --task sweep --scenes 50``: the pipeline's trials of one task, without MLflow."""
+    import argparse
+
+    import envs  # noqa: F401  (registers the tasks)
+
+    parser = argparse.ArgumentParser(description="Success rates of the expert, prior and uniform plans of a task "
+                                                 "on the same scenes as the pipeline's trials stage.")
+    parser.add_argument("--task", required=True)
+    parser.add_argument("--scenes", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=0, help="the run seed (as the pipeline's --seed)")
+    args = parser.parse_args(argv)
+    from envs.tasks import task_class
+
+    key = task_class(args.task).measure_key
+    for kind in PLAN_KINDS:
+        seed = kind_seed(args.seed, kind)
+        outs = run_trials(args.task, plan_set(args.task, kind, args.scenes, seed), trial_scene_seeds(seed, args.scenes),
+                          progress=False)
+        k = sum(o.success for o in outs)
+        print(f"{args.task} {kind:<8} {k}/{len(outs)} = {k / len(outs):.2f}; mean {key} "
+              f"{np.mean([o.measure for o in outs]):.2f}; errors {sum(bool(o.error) for o in outs)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from prefect import flow
 
+from envs.trials import PLAN_KINDS, kind_seed
 from flows.assets import verify_assets
 from flows.evaluate_rn import log_rn_eval
 from flows.export import export_dataset
@@ -29,8 +30,6 @@ from flows.train_rn import evaluate_in_sim, rn_features, train_pointnet_stage
 from prl import tracking
 from prl.config import ConfigError, PipelineConfig, make_config
 from prl.version import code_version, file_digest, git_commit
-
-PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
 
 
 def synthesis_dir(cfg: PipelineConfig) -> Path:
@@ -193,9 +192,9 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
         for task in cfg.tasks:
             cls = task_class(task)
             with tracking.child_run(f"trials-{task}", params={"task": task, "scenes": cfg.eval_scenes}):
-                outcomes = {kind: plan_trials(task, kind, cfg.eval_scenes, cfg.seed + 7919 * i, cfg.episode_frames,
+                outcomes = {kind: plan_trials(task, kind, cfg.eval_scenes, kind_seed(cfg.seed, kind), cfg.episode_frames,
                                               version)
-                            for i, kind in enumerate(PLAN_KINDS)}
+                            for kind in PLAN_KINDS}
                 results[task] = _log_trials(task, outcomes, cls.measure_key, out_dir)
                 print(f"{task}: success rate " + ", ".join(f"{k} {v:.2f}" for k, v in results[task].items()))
             if cfg.render:

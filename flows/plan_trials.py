@@ -16,8 +16,6 @@ def plan_trials(task_name: str, kind: str, n: int, seed: int, n_frames: int,
 
     ``code_version`` is part of the cache key so a code change re-runs the simulation.
     """
-    from envs.trials import plan_set, run_trials
+    from envs.trials import plan_set, run_trials, trial_scene_seeds
 
-    plans = plan_set(task_name, kind, n, seed)
-    seeds = [seed * 100_003 + i for i in range(n)]
-    return run_trials(task_name, plans, seeds, n_frames=n_frames)
+    return run_trials(task_name, plan_set(task_name, kind, n, seed), trial_scene_seeds(seed, n), n_frames=n_frames)

@@ -12,8 +12,9 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 pytest.importorskip("mani_skill")
 
-from envs.executor import STAGES, ExecutorConfig, PlanExecutor
 from honesty import assert_tool_held_by_contact_only
+
+from envs.executor import STAGES, ExecutorConfig, PlanExecutor
 from prl.constants import EPISODE_FRAMES, SENSOR_NAMES
 
 EXPERT = [0, 3, 2, 0, 0, 1]

@@ -3,7 +3,6 @@ shard killed ten times ends byte-identical to one never killed."""
 
 from __future__ import annotations
 
-import os
 import random
 import signal
 import subprocess

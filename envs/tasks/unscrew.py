@@ -14,7 +14,11 @@ from sapien import physx
 
 from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix
-from prl.shapes import CAP_CENTER_HEIGHT, CAP_TOP_PROUD, NECK_RADIUS  # the cap on a narrow neck, its top 1 mm proud
+from prl.shapes import (  # the cap on a narrow neck, its top 1 mm proud
+    CAP_CENTER_HEIGHT,
+    CAP_TOP_PROUD,
+    NECK_RADIUS,
+)
 
 # --- nominal geometry (metres) -----------------------------------------------------------------------
 CAP_RADIUS_RANGE = (0.032, 0.038)
@@ -25,7 +29,7 @@ CAP_FRICTION_RANGE = (0.9, 1.4)
 """Static = dynamic friction of the cap's knurled side."""
 CAP_TOP_FRICTION = 0.05
 """Friction of the cap's smooth top: a palm that only presses on it and turns cannot beat the breakaway torque."""
-BREAKAWAY_TORQUE_RANGE = (0.3, 0.6)
+BREAKAWAY_TORQUE_RANGE = (0.9, 1.5)
 """Torque (N m) the cap's thread holds before it turns, whatever the squeeze (a velocity drive with a force limit)."""
 THREAD_DAMPING = 1e4
 """Damping (N m s/rad) of the thread's zero-velocity drive: below the breakaway torque the cap creeps < 1e-5 rad/s."""
@@ -67,7 +71,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
 
     **Randomizations:**
     - cap radius in [3.2, 3.8] cm, half-height in [1.0, 1.3] cm, side friction in [0.9, 1.4]
-    - breakaway torque in [0.3, 0.6] N m
+    - breakaway torque in [0.9, 1.5] N m (real screw caps open at about 1-2 N m)
     - bottle body radius in [2.2, 2.8] cm and height in [3.5, 4.5] cm; bottle position +-2 cm in x, y
 
     **Success Conditions:**
