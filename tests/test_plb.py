@@ -111,7 +111,7 @@ def test_priors_are_positive_distributions(bank):
     [
         ("hammer", "medium_wrap", "wrist_horizontal"),
         ("sweep", "medium_wrap", "arm_linear_x"),
-        ("unscrew", "medium_wrap", "arm_rotate_palm"),
+        ("unscrew", "precision_disk", "arm_rotate_palm"),  # a 6.4-7.6 cm cap is the precision disk's object
         ("tweeze", "palmar_pinch", "finger_squeeze"),
     ],
 )
