@@ -145,7 +145,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 row = {"attempt": attempt, "seed": scene_seed, "plan": demo.plan.tolist(), "success": True,
-                       "measure": _measure(demo.outcome)}
+                       "measure": _measure(demo.outcome, spec.task)}
             else:
                 if env is None:
                     from envs.executor import ExecutorConfig, PlanExecutor
@@ -171,7 +171,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                     cleanup = ExitStack()
                     env = executor = None
                 else:
-                    row |= {"success": bool(result.success), "measure": _measure(result.outcome)}
+                    row |= {"success": bool(result.success), "measure": _measure(result.outcome, spec.task)}
                     if result.fault and not result.success:  # (a demo's row, rebuilt after a kill, has none)
                         row["fault"] = result.fault
             _append(spec.dir, row)
@@ -190,11 +190,11 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                        errors=errors)
 
 
-def _measure(outcome: dict) -> float:
-    for key in ("nail_descent_cm", "measure"):
-        if key in outcome:
-            return float(outcome[key])
-    return float("nan")
+def _measure(outcome: dict, task: str) -> float:
+    """The task's measured quantity (its ``measure_key``: nail descent, cubes in the zone, cap turn) of an outcome."""
+    from envs.tasks import task_class
+
+    return float(outcome.get(task_class(task).measure_key, float("nan")))
 
 
 def yield_report(out_dir: Path, task: str) -> dict[str, float]:

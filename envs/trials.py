@@ -139,9 +139,16 @@ def failed_outcome(task: str, seed: int, plan: Sequence[int], exc: BaseException
 
 def run_trials(task: str, plans: Sequence[Sequence[int]], seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
                progress: bool = True, randomization: float = 1.0) -> list[TrialOutcome]:
-    """Execute ``plans[i]`` on the scene of ``seeds[i]``; return one outcome each, in order."""
+    """Execute ``plans[i]`` on the scene of ``seeds[i]``; return one outcome each, in order. An invalid plan is
+    bad input: ``ValueError`` naming it before anything runs (only a valid plan's attempt is recorded as an error)."""
     if len(plans) != len(seeds):
         raise ValueError(f"plans and seeds differ in length: {len(plans)} != {len(seeds)}")
+    plb = load_plb()
+    for i, plan in enumerate(plans):
+        try:
+            plb.validate_plan(plan)
+        except ValueError as exc:
+            raise ValueError(f"plan {i} of the trials: {exc}") from exc
     return run_policy(task, lambda i, env, x_manip: plans[i], seeds, n_frames=n_frames,
                       randomization=randomization, progress=progress)
 

@@ -110,6 +110,8 @@ def test_a_raising_attempt_is_recorded_and_the_shard_goes_on(tmp_path: Path, mon
     assert [bool(o.error) for o in outs] == [False, True, False]
     assert outs[1].error.startswith("RuntimeError: injected") and not outs[1].success and outs[1].fail
     assert outs[0].success and outs[2].success  # the trial after the error ran on a rebuilt env
+    with pytest.raises(ValueError, match="plan 1 of the trials: .*grasp_pattern is 9"):  # bad input still raises
+        run_trials("hammer", [(0, 3, 2, 0, 0, 1), (0, 3, 2, 9, 0, 1)], [1, 2], progress=False)
 
 
 # The child runs one shard; with "demo" or "append" it SIGKILLs itself halfway through writing the first
