@@ -131,6 +131,9 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     successes = sum(r["success"] for r in rows)
     attempt = len(rows)
     plb = load_plb()
+    from envs.tasks import task_class
+
+    measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
     env = executor = None
     cleanup = ExitStack()
     bar = None
@@ -145,7 +148,7 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 row = {"attempt": attempt, "seed": scene_seed, "plan": demo.plan.tolist(), "success": True,
-                       "measure": _measure(demo.outcome, spec.task)}
+                       "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
                     from envs.executor import ExecutorConfig, PlanExecutor
@@ -171,7 +174,8 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                     cleanup = ExitStack()
                     env = executor = None
                 else:
-                    row |= {"success": bool(result.success), "measure": _measure(result.outcome, spec.task)}
+                    row |= {"success": bool(result.success),
+                            "measure": float(result.outcome.get(measure_key, float("nan")))}
                     if result.fault and not result.success:  # (a demo's row, rebuilt after a kill, has none)
                         row["fault"] = result.fault
             _append(spec.dir, row)
@@ -188,13 +192,6 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     errors = sum("error" in r for r in read_attempts(spec.dir))
     return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos,
                        errors=errors)
-
-
-def _measure(outcome: dict, task: str) -> float:
-    """The task's measured quantity (its ``measure_key``: nail descent, cubes in the zone, cap turn) of an outcome."""
-    from envs.tasks import task_class
-
-    return float(outcome.get(task_class(task).measure_key, float("nan")))
 
 
 def yield_report(out_dir: Path, task: str) -> dict[str, float]:

@@ -186,17 +186,19 @@ class PRLTaskEnv(BaseEnv):
         name: str,
         center: np.ndarray,
         half_size: np.ndarray,
-        yaw: float,
+        yaw: float | np.ndarray,
         color: tuple[float, float, float, float],
     ) -> Actor:
-        """Build a static box at ``center`` (world) rotated by ``yaw`` about Z."""
+        """Build a static box at ``center`` (world) rotated by ``yaw`` about Z, or by ``yaw`` given as a
+        (3, 3) rotation matrix (a tilted support)."""
         builder = self.scene.create_actor_builder()
         material = physx.PhysxMaterial(TABLE_FRICTION, TABLE_FRICTION, 0.0)
         builder.add_box_collision(half_size=list(half_size), material=material)
         builder.add_box_visual(
             half_size=list(half_size), material=sapien.render.RenderMaterial(base_color=list(color))
         )
-        builder.initial_pose = pose_from_matrix(np.asarray(center, dtype=np.float64), yaw_matrix(yaw))
+        rotation = np.asarray(yaw, dtype=np.float64) if np.ndim(yaw) == 2 else yaw_matrix(float(yaw))
+        builder.initial_pose = pose_from_matrix(np.asarray(center, dtype=np.float64), rotation)
         return builder.build_static(name=name)
 
     def _reset_hand(self) -> None:

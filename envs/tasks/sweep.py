@@ -198,7 +198,7 @@ class PRLSweepEnv(PRLTaskEnv):
         depth = head_bottom[2] + 0.02
         block_half = np.array([head_half[0] + 0.01, depth / 2, head_half[2] + 0.01])
         center = head_bottom - frame[:, 1] * block_half[1]
-        self.rack_head = self._build_posed_box("rack_head", center, block_half, frame, (0.3, 0.3, 0.35, 1))
+        self.rack_head = self._build_static_box("rack_head", center, block_half, frame, (0.3, 0.3, 0.35, 1))
         # the butt block: flat top just under the handle's capsule at its +X end
         r, hl = params["handle_radius"], params["handle_half_length"]
         butt = rest[:3, :3] @ np.array([hl - 0.01, 0.0, 0.0]) + rest[:3, 3]
@@ -206,15 +206,6 @@ class PRLSweepEnv(PRLTaskEnv):
         butt_half = np.array([0.015, 0.03, top / 2])
         self.rack_butt = self._build_static_box("rack_butt", np.array([butt[0], butt[1], top / 2]), butt_half,
                                                 params["rack_yaw"], (0.3, 0.3, 0.35, 1))
-
-    def _build_posed_box(self, name: str, center: np.ndarray, half: np.ndarray, rotation: np.ndarray,
-                         color: tuple[float, float, float, float]) -> Actor:
-        builder = self.scene.create_actor_builder()
-        material = physx.PhysxMaterial(0.8, 0.8, 0.0)
-        builder.add_box_collision(half_size=list(half), material=material)
-        builder.add_box_visual(half_size=list(half), material=sapien.render.RenderMaterial(base_color=list(color)))
-        builder.initial_pose = pose_from_matrix(center, rotation)
-        return builder.build_static(name=name)
 
     def _cube_pose(self, i: int) -> sapien.Pose:
         p = self.scene_params
