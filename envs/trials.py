@@ -57,6 +57,11 @@ def trial_scene_seeds(seed: int, n: int) -> list[int]:
     return [seed * 100_003 + i for i in range(n)]
 
 
+def eval_scene_seeds(seed: int, n: int) -> list[int]:
+    """The ``n`` unseen scenes of a run seeded ``seed`` on which the RN and the LN are evaluated."""
+    return [10_000_000 + 1_000 * seed + i for i in range(n)]
+
+
 def plan_set(task: str, kind: str, n: int, seed: int) -> list[tuple[int, ...]]:
     """``n`` plans of a kind: 'expert' (the task's expert plan repeated), 'prior' (sampled from the
     task's PLB prior) or 'uniform' (uniform over the Representation Space), seeded by ``seed``."""

@@ -1,9 +1,11 @@
 """The PRL pipeline as a Prefect flow: ``python -m flows.full_pipeline [--profile paper] ...``.
 
-Stages present today: assets (hand model + PLB) -> plan trials per task (the task's expert
-plan, plans sampled from the PLB prior, uniformly random plans, each executed in simulation
-on domain-randomised scenes) -> stage pictures of the expert plan. Every run is one MLflow
-parent run with a child run per stage; see the README for how to look at them.
+Stages: assets (hand model + PLB) -> plan trials per task (the task's expert plan, plans sampled
+from the PLB prior, uniformly random plans, each executed in simulation on domain-randomised
+scenes) -> stage pictures of the expert plan -> scene synthesis (Dask) -> label recovery ->
+LeRobot export -> PointNet -> RN training -> RN evaluation in simulation -> LN (A2C pre-trained on
+the demonstrations, one run per task). Every run is one MLflow parent run with a child run per
+stage; see the README for how to look at them.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any
 import numpy as np
 from prefect import flow
 
-from envs.trials import PLAN_KINDS, kind_seed
+from envs.trials import PLAN_KINDS, eval_scene_seeds, kind_seed
 from flows.assets import verify_assets
 from flows.evaluate_rn import log_rn_eval
 from flows.export import export_dataset
@@ -60,8 +62,9 @@ def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, 
 
 
 def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: str,
-               out_dir: Path) -> dict[str, dict[str, float]]:
-    """PointNet pre-training, RN training on the exported dataset, RN evaluation in simulation (child runs)."""
+               out_dir: Path) -> tuple[dict[str, dict[str, float]], dict[str, Any], Path]:
+    """PointNet pre-training, RN training on the exported dataset, RN evaluation in simulation (child runs);
+    returns the evaluation's success rates, the dataset's RN features and the PointNet checkpoint."""
     import mlflow
 
     from prl.features import FEATURE_LAYOUT, split_by_seed
@@ -118,11 +121,33 @@ def _rn_stages(cfg: PipelineConfig, dataset_root: Path, repo_id: str, version: s
                                                "wide_randomization": cfg.wide_randomization}):
         for split, scale in (("train_ranges", 1.0), ("wide_ranges", cfg.wide_randomization)):
             for task in cfg.tasks:
-                seeds = [10_000_000 + 1_000 * cfg.seed + i for i in range(cfg.rn_eval_scenes)]
+                seeds = eval_scene_seeds(cfg.seed, cfg.rn_eval_scenes)
                 out = evaluate_in_sim(rn_path, pn_path, task, seeds, cfg.n_points, cfg.episode_frames, scale,
                                       cfg.seed + 31)
                 print(f"{task} ({split}): plans executed on {len(seeds)} unseen scenes")
                 results[f"{task}/rn/{split}"] = log_rn_eval(task, split, out)
+    return results, data, pn_path
+
+
+def _ln_stage(cfg: PipelineConfig, data: dict[str, Any], pn_path: Path) -> dict[str, dict[str, float]]:
+    """One LN run per task (``flows.ln``), each an MLflow child run, pre-trained on the dataset's demonstrations and
+    evaluated on the RN evaluation's unseen scenes; the final policy is registered as ``prl-ln``."""
+    from flows.ln import LNPoint, LNSetup, ln_point, write_demonstrations
+
+    setup = LNSetup(timesteps=cfg.ln_timesteps, demo_dir=cfg.output_dir / "ln" / f"seed{cfg.seed}" / "demos",
+                    pointnet_path=pn_path, out_dir=cfg.output_dir / "ln" / f"seed{cfg.seed}" / "points",
+                    eval_seeds=tuple(eval_scene_seeds(cfg.seed, cfg.rn_eval_scenes)), n_points=cfg.n_points,
+                    n_frames=cfg.episode_frames, n_envs=cfg.ln_envs, register=True)
+    write_demonstrations(setup.demo_dir, list(cfg.tasks), data)
+    results = {}
+    for task in cfg.tasks:
+        summary = ln_point(LNPoint(task, "physics", cfg.ln_demo_steps, cfg.seed), setup)
+        ev = summary["eval"]
+        rows = summary["rows"]
+        print(f"{task} LN ({cfg.ln_timesteps} timesteps, pre-trained on {cfg.ln_demo_steps} demos): training success "
+              f"{rows[-1]['success_rate'] if rows else float('nan'):.2f} in the last update; deterministic plan "
+              f"{ev['successes']}/{ev['n']} on unseen scenes (95% CI {ev['ci95'][0]:.2f}-{ev['ci95'][1]:.2f})")
+        results[f"{task}/ln"] = {"success_rate": ev["successes"] / max(ev["n"], 1)}
     return results
 
 
@@ -252,7 +277,10 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
             print(f"LeRobot dataset {repo_id}: {report.n_episodes} episodes, {report.n_frames} frames at "
                   f"{report.root} ({'an identical earlier export, ' if report.reused else ''}validated on reload)")
         if cfg.train_rn:
-            results.update(_rn_stages(cfg, report.root, repo_id, version, out_dir))
+            rn_results, data, pn_path = _rn_stages(cfg, report.root, repo_id, version, out_dir)
+            results.update(rn_results)
+            if cfg.train_ln:
+                results.update(_ln_stage(cfg, data, pn_path))
         print(f"MLflow parent run {parent.info.run_id}: "
               f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
     return results
@@ -274,7 +302,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rn-epochs", type=int, default=None, help="RN training epochs (paper: 200)")
     parser.add_argument("--pn-epochs", type=int, default=None, help="PointNet pre-training epochs")
     parser.add_argument("--pn-shapes", type=int, default=None, help="synthetic shapes for PointNet pre-training")
-    parser.add_argument("--rn-eval-scenes", type=int, default=None, help="unseen scenes per RN evaluation split")
+    parser.add_argument("--rn-eval-scenes", type=int, default=None,
+                        help="unseen scenes per RN evaluation split (the LN is evaluated on the same)")
+    parser.add_argument("--skip-ln", action="store_true", help="stop after the RN evaluation (no LN)")
+    parser.add_argument("--ln-timesteps", type=int, default=None, help="RL timesteps per LN run (paper: 3200)")
+    parser.add_argument("--ln-demo-steps", type=int, default=None,
+                        help="demonstrations the LN is pre-trained on (paper: 1280; 0: pure RL)")
+    parser.add_argument("--ln-envs", type=int, default=None, help="plan environments stepped in parallel by the LN")
     parser.add_argument("--output-dir", default=None)
     args = parser.parse_args(argv)
     overrides = {
@@ -283,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
         "n_shards": args.shards, "workers": args.workers, "dask_address": args.dask_address,
         "render": False if args.no_render else None, "output_dir": args.output_dir,
         "train_rn": False if args.skip_rn else None, "rn_epochs": args.rn_epochs, "rn_eval_scenes": args.rn_eval_scenes,
-        "pn_epochs": args.pn_epochs, "pn_shapes": args.pn_shapes,
+        "pn_epochs": args.pn_epochs, "pn_shapes": args.pn_shapes, "train_ln": False if args.skip_ln else None,
+        "ln_timesteps": args.ln_timesteps, "ln_demo_steps": args.ln_demo_steps, "ln_envs": args.ln_envs,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     try:  # validate before any work starts (and before Prefect spins up)

@@ -7,6 +7,7 @@ the result does not depend on the number of workers.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from prefect import flow, task
@@ -46,7 +47,8 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     if dask_address:
         return DaskTaskRunner(address=dask_address)
     return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
-                                          "dashboard_address": None, "env": worker_env()})
+                                          "dashboard_address": None, "env": worker_env(),
+                                          "silence_logs": logging.WARNING})  # no pages of worker start-up chatter
 
 
 def worker_env() -> dict[str, str]:

@@ -51,7 +51,7 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
     episodes = read_episodes(dataset_root, repo_id)
     x = episode_features(episodes, load_pointnet(pointnet_path), n_points)
     return {"x": x, "plan": episodes.plan, "label": episodes.label, "seeds": episodes.seeds,
-            "tasks": list(episodes.tasks), "texts": list(episodes.texts)}
+            "tasks": list(episodes.tasks), "texts": list(episodes.texts), "outcomes": list(episodes.outcomes)}
 
 
 #: How the RN's per-dimension distributions become one plan (each evaluated in simulation): 'rn' the

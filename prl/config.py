@@ -58,6 +58,15 @@ class PipelineConfig:
     """Fresh scenes on which the RN's plan (and a prior-sampled plan) is executed, per split."""
     wide_randomization: float = 2.0
     """Randomisation half-width scale of the harder evaluation split (1 = the training ranges)."""
+    train_ln: bool = True
+    """Run the Learning Network stage after the RN stages (it reads their features; off when ``train_rn`` is)."""
+    ln_timesteps: int = 64
+    """RL timesteps (plan episodes) of each LN run (paper: 3200; one A2C update takes 64)."""
+    ln_demo_steps: int | None = None
+    """Demonstration transitions the LN is pre-trained on (paper's ablation: 1280; at most demos_per_task;
+    None: all of a task's demos, i.e. demos_per_task; 0: pure RL)."""
+    ln_envs: int = 2
+    """Plan environments stepped in parallel by each LN run (a divisor of 64)."""
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -70,7 +79,7 @@ class PipelineConfig:
             if task not in SIMULATED_TASKS:
                 raise ConfigError(f"task {task!r} has no simulation yet; simulated: {', '.join(SIMULATED_TASKS)}")
         for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers", "pn_epochs",
-                     "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes"):
+                     "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes", "ln_timesteps", "ln_envs"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -82,6 +91,15 @@ class PipelineConfig:
             raise ConfigError(f"the RN needs at least 3 demos (2 to train on, BatchNorm needs a pair; 1 held out); "
                               f"demos_per_task={self.demos_per_task} with {len(self.tasks)} task(s) "
                               f"(pass more demos, or skip the RN stages)")
+        if self.ln_demo_steps is None:
+            object.__setattr__(self, "ln_demo_steps", self.demos_per_task)
+        if isinstance(self.ln_demo_steps, bool) or not isinstance(self.ln_demo_steps, int) or self.ln_demo_steps < 0:
+            raise ConfigError(f"ln_demo_steps must be a non-negative integer, got {self.ln_demo_steps!r}")
+        if self.train_rn and self.train_ln and self.ln_demo_steps > self.demos_per_task:
+            raise ConfigError(f"ln_demo_steps={self.ln_demo_steps} exceeds demos_per_task={self.demos_per_task}: "
+                              f"the LN cannot be pre-trained on more demonstrations than synthesis keeps")
+        if 64 % self.ln_envs:
+            raise ConfigError(f"ln_envs must divide the 64 steps of an A2C update, got {self.ln_envs!r}")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         out = Path(self.output_dir)
@@ -92,9 +110,10 @@ class PipelineConfig:
 
 
 PROFILES: dict[str, dict] = {
-    "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4},
+    "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4,
+              "ln_timesteps": 64},
     "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16, "rn_epochs": 200, "rn_eval_scenes": 50,
-              "pn_epochs": 30, "pn_shapes": 4000},
+              "pn_epochs": 30, "pn_shapes": 4000, "ln_timesteps": 3200, "ln_demo_steps": 1280},
 }
 
 

@@ -56,6 +56,8 @@ class Episodes:
     """(N, 6) int64 commanded plans (all succeeded in simulation)."""
     label: np.ndarray
     """(N, 6) int64 recovered physical-law labels (-1 where none)."""
+    outcomes: tuple[dict[str, Any], ...] = ()
+    """The task's evaluation of each episode's final simulated state (from the scene record)."""
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -100,7 +102,7 @@ def _episodes_of(ds: Any, root: Path, scenes: list[dict[str, Any]]) -> Episodes:
         seeds=np.array([int(s["seed"]) for s in scenes], dtype=np.int64),
         scene_params=tuple(dict(s["scene_params"]) for s in scenes),
         x_manip=cols["x_manip"].astype(np.float32), plan=cols["plan"].astype(np.int64),
-        label=cols["label"].astype(np.int64),
+        label=cols["label"].astype(np.int64), outcomes=tuple(dict(s.get("outcome") or {}) for s in scenes),
     )
 
 

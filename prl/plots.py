@@ -100,3 +100,41 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str, y_key: str,
+                         out: Path, title: str = "", x_label: str | None = None) -> Path:
+    """The paper's Fig 8 redrawn: for each variant, ``y_key`` against ``x_key`` as the mean over seeds with a
+    band from the lowest to the highest seed. ``curves[variant]`` is one list of rows per seed (the LN's
+    per-update rows, first point at the end of the first update); seeds are aligned on their common ``x_key``
+    range by linear interpolation."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not curves:
+        raise ValueError("curves is empty; give at least one variant")
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for variant, runs in curves.items():
+        runs = [r for r in runs if r]
+        if not runs:
+            continue
+        start = max(r[0][x_key] for r in runs)
+        end = min(r[-1][x_key] for r in runs)
+        grid = np.linspace(start, max(end, start), 100)
+        ys = np.stack([np.interp(grid, [row[x_key] for row in r], [row[y_key] for row in r]) for r in runs])
+        line, = ax.plot(grid, ys.mean(axis=0), label=f"{variant} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
+                        marker="o" if len(runs[0]) < 3 else None)
+        if len(runs) > 1:
+            ax.fill_between(grid, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
+    ax.set_xlabel(x_label or x_key)
+    ax.set_ylabel(y_key.replace("_", " "))
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -32,7 +32,7 @@ def test_bad_config_fails_before_work(tmp_path: Path) -> None:
 def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     res = _pipeline(tmp_path, "--tasks", "hammer,sweep", "--scenes", "2", "--no-render", "--output-dir", str(tmp_path / "out"),
                     "--demos-per-task", "3", "--shards", "1", "--workers", "1", "--pn-epochs", "1",
-                    "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1")
+                    "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1", "--ln-timesteps", "64")
     assert res.returncode == 0, res.stderr[-3000:]
     import mlflow
 
@@ -42,7 +42,8 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parents) == 1
     assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "trials-sweep", "synthesis", "labels",
-                                                    "export", "pointnet", "rn-train", "rn-eval"}
+                                                    "export", "pointnet", "rn-train", "rn-eval",
+                                                    "ln-hammer-physics-k3-seed0", "ln-sweep-physics-k3-seed0"}
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     trials = children[children["tags.mlflow.runName"] == "trials-hammer"].iloc[0]
     # measured in simulation: the expert plan drives the nail on these two scenes
@@ -87,6 +88,19 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
             assert ev[f"metrics.hammer/{split}/{kind}_ci95_high"] - ev[f"metrics.hammer/{split}/{kind}_ci95_low"] \
                 == pytest.approx(0.7935, abs=1e-3)
     assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1
+
+    # LN: one child run per task, pre-trained on the task's 3 demos, one A2C update of 64 plan episodes
+    client = mlflow.tracking.MlflowClient()
+    for task in ("hammer", "sweep"):
+        ln = children[children["tags.mlflow.runName"] == f"ln-{task}-physics-k3-seed0"].iloc[0]
+        assert ln["params.ln.demo_steps"] == "3" and ln["params.ln.steps_per_update"] == "64"
+        assert ln["params.ln.learning_rate"] == "0.0007" and ln["params.sb3.vf_coef"] == "0.5"
+        assert [m.step for m in client.get_metric_history(ln["run_id"], "ln/success_rate")] == [64]
+        assert 0.0 <= ln["metrics.ln/success_rate"] <= 1.0 and ln["metrics.ln/frames"] > 64 * 700
+        assert len(client.get_metric_history(ln["run_id"], "ln/pretrain/actor_loss")) == 10  # 10 epochs x 1 batch
+        assert ln["metrics.ln/eval/success_rate"] in (0.0, 1.0) and ln["metrics.ln/eval/errors"] == 0.0
+        assert ln["metrics.registered_reload_action_mismatches"] == 0.0
+    assert len(client.search_model_versions("name='prl-ln'")) == 2
 
     # the saved checkpoint, evaluated on its own by flows.evaluate_rn on the pipeline's first eval scene,
     # finds its PointNet by digest and reproduces the pipeline's plans and outcomes exactly

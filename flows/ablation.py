@@ -1,0 +1,197 @@
+"""The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset ... --pointnet ...``.
+
+Points = tasks x variants x demonstration steps x seeds (``flows.ln.LNPoint``: physics-guided A2C for each
+K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
+point one MLflow child run under one sweep parent run. The sweep is resumable: the parent run is found
+again by a key over the sweep's settings, and points that already have a finished child run and a
+summary are not re-run. At the end Fig 8 is drawn from the points' runs: success rate against
+timesteps and against physics frames, mean over seeds with a min-max band (top: physics-guided vs
+joint control; bottom: demonstration steps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from prefect import flow
+
+from flows.ln import VARIANTS, LNPoint, LNSetup, ln_point, write_demonstrations
+from prl import tracking
+
+PAPER_DEMO_STEPS: tuple[int, ...] = (0, 320, 640, 1280, 2560)
+"""The paper's demonstration-step ablation."""
+
+
+def sweep_points(tasks: list[str], variants: list[str], demo_steps: list[int], seeds: list[int]) -> list[LNPoint]:
+    """Every point of a sweep, in a fixed order (``LNPoint`` checks each: an unknown variant, a negative K)."""
+    points = []
+    for task_name in tasks:
+        for variant in variants:
+            steps = [0] if variant == "joint" else [k for k in demo_steps if variant != "bc" or k > 0]
+            for k in steps:
+                points.extend(LNPoint(task_name, variant, int(k), int(s)) for s in seeds)
+    if not points:
+        raise ValueError(f"the sweep has no point (variants {variants}, demo steps {demo_steps}, seeds {seeds})")
+    return points
+
+
+def finished_points(parent_run_id: str) -> set[str]:
+    """Names of the points that have a FINISHED child run under ``parent_run_id``."""
+    import mlflow
+
+    runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent_run_id}' and "
+                                            f"attributes.status = 'FINISHED'", output_format="list")
+    return {r.data.tags.get("ln_point", "") for r in runs} - {""}
+
+
+def _sweep_key(settings: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _parent(key: str, name: str, settings: dict[str, Any]) -> Any:
+    """The sweep's parent run: the one tagged with ``key`` if it exists (resume), else a new one."""
+    import mlflow
+
+    found = mlflow.search_runs(filter_string=f"tags.sweep_key = '{key}'", output_format="list",
+                               order_by=["attributes.start_time DESC"], max_results=1)
+    while mlflow.active_run() is not None:
+        mlflow.end_run()
+    if found:
+        return mlflow.start_run(run_id=found[0].info.run_id)
+    run = mlflow.start_run(run_name=name, tags={"sweep_key": key})
+    mlflow.log_params(tracking.flatten_params(settings))
+    return run
+
+
+@flow(name="prl-ln-ablation", log_prints=True)
+def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, tasks: list[str] | None = None,
+             variants: list[str] | None = None, demo_steps: list[int] | None = None, seeds: list[int] | None = None,
+             timesteps: int = 3200, eval_scenes: int = 50, eval_seed: int = 0, workers: int = 2,
+             dask_address: str | None = None, output_dir: str = "outputs/ablation", n_points: int = 512,
+             pretrain_epochs: int = 10) -> dict[str, Any]:
+    """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into ``output_dir``."""
+    import mlflow
+
+    from envs.trials import eval_scene_seeds
+    from flows.ln import read_demonstrations
+    from flows.synthesize import make_task_runner
+    from flows.train_rn import rn_features
+    from prl.export import read_scenes
+
+    tasks = list(tasks or ["hammer"])
+    points = sweep_points(tasks, list(variants or VARIANTS), list(demo_steps if demo_steps is not None else [0, 1280]),
+                          list(seeds if seeds is not None else [0, 1, 2]))
+    root = Path(dataset_root)
+    repo_id = repo_id or _repo_id_of(root)
+    read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
+    out = Path(output_dir)
+    settings = {"dataset_root": str(root.resolve()), "pointnet": str(Path(pointnet_path).resolve()),
+                "timesteps": timesteps, "eval_scenes": eval_scenes, "eval_seed": eval_seed,
+                "pretrain_epochs": pretrain_epochs, "n_points": n_points}
+    key = _sweep_key({**settings, "points": [p.name for p in points]})
+    setup = LNSetup(timesteps=timesteps, demo_dir=out / "demos", pointnet_path=Path(pointnet_path), out_dir=out / "points",
+                    eval_seeds=tuple(eval_scene_seeds(eval_seed, eval_scenes)), n_points=n_points, n_envs=1,
+                    pretrain_epochs=pretrain_epochs, progress=False)
+    tracking.configure("prl")
+    with _parent(key, f"ln-ablation-{key}", settings) as parent:
+        if not all((setup.demo_dir / f"demos-{t}.npz").is_file() for t in tasks):
+            counts = write_demonstrations(setup.demo_dir, tasks, rn_features(root, repo_id, Path(pointnet_path), n_points))
+            print("demonstrations per task: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
+        for p in points:  # K beyond the demonstrations available: an error before any point starts
+            if p.demo_steps:
+                available = len(read_demonstrations(setup.demo_dir, p.task).x)
+                if p.demo_steps > available:
+                    raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations "
+                                     f"in {str(root)!r}; synthesise more or sweep fewer steps")
+        done = finished_points(parent.info.run_id)
+        summaries = {p.name: json.loads((setup.out_dir / f"{p.name}.json").read_text()) for p in points
+                     if p.name in done and (setup.out_dir / f"{p.name}.json").is_file()}
+        todo = [p for p in points if p.name not in summaries]
+        print(f"sweep {key}: {len(points)} points, {len(summaries)} already finished, {len(todo)} to run "
+              f"(MLflow parent {parent.info.run_id})")
+        if todo:
+            summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner))
+        figs = draw_fig8(summaries, out)
+        for fig in figs:
+            mlflow.log_artifact(str(fig))
+        table = {name: s["eval"] | {"train_seconds": s["train_seconds"]} for name, s in summaries.items()}
+        for name, s in sorted(table.items()):
+            print(f"{name}: {s['successes']}/{s['n']} on unseen scenes (95% CI {s['ci95'][0]:.2f}-{s['ci95'][1]:.2f})")
+    return summaries
+
+
+def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, dask_address: str | None,
+             make_task_runner: Any) -> dict[str, Any]:
+    @flow(name="prl-ln-points", task_runner=make_task_runner(workers, dask_address))
+    def _points(todo: list[LNPoint]) -> list[dict[str, Any]]:
+        futures = [ln_point.submit(p, setup, parent_id) for p in todo]
+        return [f.result() for f in futures]
+
+    return {s["name"]: s for s in _points(todo)}
+
+
+def _repo_id_of(root: Path) -> str:
+    info = json.loads((root / "meta" / "info.json").read_text()) if (root / "meta" / "info.json").is_file() else {}
+    return str(info.get("repo_id") or f"prl/{root.name}")
+
+
+def draw_fig8(summaries: dict[str, Any], out: Path) -> list[Path]:
+    """Fig 8 from the points' curves: per task, physics-guided (largest K, and K = 0) vs BC vs joint control,
+    and the demonstration-step curves; each against timesteps and against physics frames."""
+    from prl.plots import plot_learning_curves
+
+    figs = []
+    by_task: dict[str, dict[str, list]] = {}
+    for s in summaries.values():
+        p = s["point"]
+        label = "joint control" if p["variant"] == "joint" else f"{p['variant']} K={p['demo_steps']}"
+        by_task.setdefault(p["task"], {}).setdefault(label, []).append(s["rows"])
+    for task_name, curves in sorted(by_task.items()):
+        for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
+            figs.append(plot_learning_curves(dict(sorted(curves.items())), x_key, "window_success_rate",
+                                             out / f"fig8_{task_name}_{x_key}.png", title=f"{task_name}: LN variants",
+                                             x_label=x_label))
+    return figs
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset", required=True, help="exported LeRobot dataset root (the pipeline's datasets/...)")
+    parser.add_argument("--pointnet", required=True, help="the PointNet checkpoint the RN used (models/pointnet-*.pt)")
+    parser.add_argument("--repo-id", default=None)
+    parser.add_argument("--tasks", default="hammer")
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--demo-steps", default="0,1280", help=f"comma-separated K (paper: {PAPER_DEMO_STEPS})")
+    parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument("--timesteps", type=int, default=3200)
+    parser.add_argument("--eval-scenes", type=int, default=50)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--dask-address", default=None)
+    parser.add_argument("--output-dir", default="outputs/ablation")
+    args = parser.parse_args(argv)
+
+    def ints(text: str, what: str) -> list[int]:
+        try:
+            return [int(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            parser.error(f"--{what} must be comma-separated integers, got {text!r}")
+
+    try:
+        sweep_points(args.tasks.split(","), args.variants.split(","), ints(args.demo_steps, "demo-steps"),
+                     ints(args.seeds, "seeds"))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    ablation(args.dataset, args.pointnet, args.repo_id, args.tasks.split(","), args.variants.split(","),
+             ints(args.demo_steps, "demo-steps"), ints(args.seeds, "seeds"), args.timesteps, args.eval_scenes,
+             workers=args.workers, dask_address=args.dask_address, output_dir=args.output_dir)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,346 @@
+"""The Learning Network (paper Sec. IV-B, V-B): A2C over the Representation Space, pre-trained on demonstrations.
+
+The LN is stable-baselines3's A2C acting on x, the RN's input (``prl.features``), with the plan
+vector as a MultiDiscrete action; one RL step executes one whole plan (``envs.plan_env.PlanEnv``).
+The paper's settings are ``LNConfig``'s defaults: policy and value nets of two hidden layers of
+256, lr 0.0007, 64 steps per update (``n_steps`` x ``n_envs``), gamma 0.99, GAE lambda 0.95, entropy
+coefficient 0.01, 3200 timesteps; everything else is SB3's default (RMSprop, value coefficient 0.5,
+gradient clip 0.5), recorded by ``LNConfig.params``. With one-step episodes (``terminated=True``) the
+GAE advantage is r - V(x): the critic is a learned baseline of the plan's reward on this scene.
+
+Pre-training with demonstrations (``pretrain``), our reading of the paper's open points:
+
+- one **demonstration step** is one demonstration transition (x, plan, r): a synthesised episode's
+  RN input x, its commanded plan, and its measured reward (the task's measure in its outcome),
+  counted like one RL timestep. ``demo_steps = K`` uses K transitions of the exported dataset (the
+  first K of a seeded shuffle); asking for more than the dataset holds is an error, not a silent
+  re-use. The K transitions are passed over ``pretrain_epochs`` times in minibatches of 64 (the size
+  of one A2C update).
+- targets are the **commanded plans**, which physics confirmed (every exported demo succeeded), not
+  the RN's classifications: the RN is trained on the same plans, so its argmax would feed the LN the
+  RN's errors as well. The recovered physical-law labels are not targets (some dimensions have no
+  label).
+- ``mode="actor_critic"`` (the paper's pre-training): -log pi(plan | x) plus ``vf_coef`` x the squared
+  error of V(x) against r; ``mode="bc"`` (behaviour cloning): the actor term alone, the value net
+  stays as initialised. Both use the A2C's own optimiser and gradient clip.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+PRETRAIN_MODES: tuple[str, ...] = ("actor_critic", "bc")
+"""Demonstration pre-training: actor and critic (the paper), or the actor alone (behaviour cloning)."""
+PAPER_A2C: dict[str, Any] = {"learning_rate": 7e-4, "steps_per_update": 64, "gamma": 0.99, "gae_lambda": 0.95,
+                             "ent_coef": 0.01, "hidden": (256, 256), "timesteps": 3200}
+"""The paper's A2C settings (Sec. V-B), the defaults of ``LNConfig``."""
+
+
+@dataclass(frozen=True)
+class LNConfig:
+    """One LN run. The defaults are the paper's (``PAPER_A2C``) with no pre-training."""
+
+    timesteps: int = 3200
+    """RL timesteps (plan episodes) after pre-training."""
+    learning_rate: float = 7e-4
+    steps_per_update: int = 64
+    """Samples per A2C update, n_steps x n_envs."""
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.01
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layers of both the policy and the value net."""
+    n_envs: int = 1
+    """Plan environments stepped in parallel (subprocesses when > 1)."""
+    demo_steps: int = 0
+    """Demonstration transitions used by pre-training (0: pure RL)."""
+    pretrain_mode: str = "actor_critic"
+    """One of ``PRETRAIN_MODES``."""
+    pretrain_epochs: int = 10
+    """Passes over the ``demo_steps`` transitions."""
+    seed: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Further SB3 A2C keyword arguments (empty in the paper's settings)."""
+
+    def __post_init__(self) -> None:
+        ints = {"timesteps": (self.timesteps, 0), "steps_per_update": (self.steps_per_update, 1),
+                "n_envs": (self.n_envs, 1), "demo_steps": (self.demo_steps, 0),
+                "pretrain_epochs": (self.pretrain_epochs, 1), "seed": (self.seed, 0)}
+        for name, (value, low) in ints.items():
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"LNConfig.{name} must be an integer >= {low}, got {value!r}")
+        for name in ("learning_rate", "gamma", "gae_lambda", "ent_coef"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+                raise ValueError(f"LNConfig.{name} must be a finite number >= 0, got {value!r}")
+        if self.steps_per_update % self.n_envs:
+            raise ValueError(f"LNConfig.steps_per_update ({self.steps_per_update}) must be a multiple of "
+                             f"n_envs ({self.n_envs}): an update takes n_steps x n_envs samples")
+        if not self.hidden or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in self.hidden):
+            raise ValueError(f"LNConfig.hidden must be positive layer widths, got {self.hidden!r}")
+        if self.pretrain_mode not in PRETRAIN_MODES:
+            raise ValueError(f"unknown pretrain_mode {self.pretrain_mode!r}; known: {', '.join(PRETRAIN_MODES)}")
+
+    @property
+    def n_steps(self) -> int:
+        """SB3's ``n_steps``: steps per environment per update."""
+        return self.steps_per_update // self.n_envs
+
+    def a2c_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``stable_baselines3.A2C`` (without policy, env and features)."""
+        return {"learning_rate": self.learning_rate, "n_steps": self.n_steps, "gamma": self.gamma,
+                "gae_lambda": self.gae_lambda, "ent_coef": self.ent_coef, "seed": self.seed, **self.extra}
+
+    def params(self) -> dict[str, Any]:
+        """Every setting, for MLflow: this config plus the SB3 defaults it leaves in place."""
+        import inspect
+
+        from stable_baselines3 import A2C
+
+        defaults = {k: v.default for k, v in inspect.signature(A2C.__init__).parameters.items()
+                    if k not in ("self", "policy", "env", "policy_kwargs", "tensorboard_log", "verbose", "device",
+                                 "_init_setup_model", "seed", "learning_rate", "n_steps", "gamma", "gae_lambda",
+                                 "ent_coef")}
+        return {**{f"ln.{k}": v for k, v in asdict(self).items() if k != "extra"},
+                **{f"sb3.{k}": self.extra.get(k, v) for k, v in defaults.items()}}
+
+
+class StandardizedX(BaseFeaturesExtractor):
+    """(x - mean) / std with fixed statistics (the demonstrations'), stored in the policy and saved with it."""
+
+    def __init__(self, observation_space: Any, mean: Sequence[float], std: Sequence[float]) -> None:
+        super().__init__(observation_space, features_dim=int(np.prod(observation_space.shape)))
+        self.register_buffer("mean", torch.as_tensor(np.asarray(mean, np.float32)))
+        self.register_buffer("std", torch.as_tensor(np.maximum(np.asarray(std, np.float32), 1e-6)))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return (obs.float() - self.mean) / self.std
+
+
+def make_ln(env: Any, cfg: LNConfig, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> Any:
+    """A fresh A2C with the config's settings on ``env`` (a gymnasium env or SB3 VecEnv). Given ``x_mean`` and
+    ``x_std`` (the demonstrations' feature statistics, ``prl.rn.feature_stats``) the policy standardises x with
+    them (``StandardizedX``); without, it sees the observation as it is (the joint-control baseline)."""
+    from stable_baselines3 import A2C
+
+    policy_kwargs: dict[str, Any] = {"net_arch": {"pi": list(cfg.hidden), "vf": list(cfg.hidden)}}
+    if x_mean is not None and x_std is not None:
+        policy_kwargs |= {"features_extractor_class": StandardizedX,
+                          "features_extractor_kwargs": {"mean": np.asarray(x_mean, np.float32).tolist(),
+                                                        "std": np.asarray(x_std, np.float32).tolist()}}
+    return A2C("MlpPolicy", env, policy_kwargs=policy_kwargs, verbose=0, device="cpu", **cfg.a2c_kwargs())
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """Demonstration transitions for pre-training: one per exported episode."""
+
+    x: np.ndarray
+    """(N, D) float32 RN inputs."""
+    plan: np.ndarray
+    """(N, 6) int64 commanded plans (one column per dimension of the action space)."""
+    reward: np.ndarray
+    """(N,) float32 measured rewards (the task's measure in the episode's outcome)."""
+
+    def __post_init__(self) -> None:
+        n = len(self.x)
+        if self.x.ndim != 2 or self.plan.ndim != 2 or len(self.plan) != n or self.reward.shape != (n,):
+            raise ValueError(f"demonstrations must be x (N, D), plan (N, A), reward (N,); got {self.x.shape}, "
+                             f"{self.plan.shape}, {self.reward.shape}")
+
+    def take(self, k: int, seed: int) -> Demonstrations:
+        """The first ``k`` transitions of a seeded shuffle; ``ValueError`` naming ``k`` when there are fewer."""
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
+            raise ValueError(f"demo_steps must be an integer >= 0, got {k!r}")
+        if k > len(self.x):
+            raise ValueError(f"demo_steps={k} exceeds the {len(self.x)} demonstration transitions available "
+                             f"(one per exported episode); synthesise more demos or ask for fewer steps")
+        idx = np.random.default_rng(seed).permutation(len(self.x))[:k]
+        return Demonstrations(self.x[idx], self.plan[idx], self.reward[idx])
+
+
+def task_demonstrations(task: str, measure_key: str, x: np.ndarray, plans: np.ndarray, tasks: Sequence[str],
+                        outcomes: Sequence[dict[str, Any]]) -> Demonstrations:
+    """The demonstration transitions of ``task`` among a dataset's episodes (x from ``prl.features``, plans,
+    per-episode task names and outcomes); the reward is the outcome's ``measure_key``. Clear errors when
+    the dataset has no episode of ``task`` or an outcome lacks the measure."""
+    idx = [i for i, t in enumerate(tasks) if t == task]
+    if not idx:
+        raise ValueError(f"the dataset has no demonstration of task {task!r} (it has {sorted(set(tasks))})")
+    missing = [i for i in idx if measure_key not in outcomes[i]]
+    if missing:
+        raise ValueError(f"episode {missing[0]} of task {task!r} records no {measure_key!r} in its outcome; "
+                         f"the LN's reward needs it (re-export the dataset)")
+    reward = np.array([float(outcomes[i][measure_key]) for i in idx], np.float32)
+    return Demonstrations(np.asarray(x, np.float32)[idx], np.asarray(plans, np.int64)[idx], reward)
+
+
+def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epochs: int = 10, batch_size: int = 64,
+             seed: int = 0, on_batch: Callable[[int, dict[str, float]], None] | None = None) -> list[dict[str, float]]:
+    """Pre-train ``model`` (an A2C of ``make_ln``) on ``demos`` (see the module docstring); one row of losses
+    per minibatch (``actor_loss``, ``critic_loss``, ``expert_prob``: the mean probability of the demonstrated plan)."""
+    import torch.nn.functional as F
+
+    if mode not in PRETRAIN_MODES:
+        raise ValueError(f"unknown pretrain mode {mode!r}; known: {', '.join(PRETRAIN_MODES)}")
+    if len(demos.x) == 0:
+        return []
+    dim = model.observation_space.shape[0]
+    if demos.x.shape[1] != dim:
+        raise ValueError(f"demonstration x has {demos.x.shape[1]} values, the LN observes {dim}")
+    if demos.plan.shape[1] != len(model.action_space.nvec):
+        raise ValueError(f"demonstrated plans have {demos.plan.shape[1]} dimensions, the LN acts on "
+                         f"{len(model.action_space.nvec)}")
+    policy = model.policy
+    policy.set_training_mode(True)
+    rng = np.random.default_rng(seed)
+    obs = torch.as_tensor(demos.x, dtype=torch.float32)
+    act = torch.as_tensor(demos.plan, dtype=torch.int64)
+    rew = torch.as_tensor(demos.reward, dtype=torch.float32)
+    rows: list[dict[str, float]] = []
+    for _ in range(int(epochs)):
+        order = rng.permutation(len(obs))
+        for start in range(0, len(order), batch_size):
+            b = torch.as_tensor(order[start:start + batch_size])
+            values, log_prob, _ = policy.evaluate_actions(obs[b], act[b])
+            actor = -log_prob.mean()
+            critic = F.mse_loss(values.flatten(), rew[b])
+            loss = actor + model.vf_coef * critic if mode == "actor_critic" else actor
+            policy.optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
+            policy.optimizer.step()
+            rows.append({"actor_loss": actor.item(), "critic_loss": critic.item(),
+                         "expert_prob": float(log_prob.detach().exp().mean())})
+            if on_batch is not None:
+                on_batch(len(rows) - 1, rows[-1])
+    policy.set_training_mode(False)
+    return rows
+
+
+WINDOW = 64
+"""Episodes in ``window_success_rate``: the last update's worth of plan episodes."""
+
+
+def curve_callback(on_update: Callable[[dict[str, float]], None] | None = None, progress: bool = True,
+                   total: int | None = None, desc: str = "LN") -> Any:
+    """An SB3 callback that turns every A2C update into one row: ``timesteps``, ``frames`` (physics frames so
+    far), ``success_rate`` and ``reward`` (mean over the episodes that ended in the update's rollout; 0 when none
+    did), ``window_success_rate`` (over the last ``WINDOW`` episodes ended so far: a joint-control episode
+    spans several updates), ``episodes``, ``errors``, and the update's ``policy_loss``, ``value_loss``,
+    ``entropy``. Rows go to ``on_update`` and to the callback's ``rows``."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm.auto import tqdm
+
+    class Curve(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.rows: list[dict[str, float]] = []
+            self._episodes: list[dict[str, Any]] = []
+            self._window: deque[bool] = deque(maxlen=WINDOW)
+            self._pending: dict[str, float] | None = None
+            self._frames = 0
+            self._bar: Any = None
+
+        def _on_training_start(self) -> None:
+            self._bar = tqdm(total=total, desc=desc, unit="plan", disable=not progress)
+
+        def _on_step(self) -> bool:
+            for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
+                if done:
+                    self._episodes.append(info)
+                    self._frames += int(info.get("frames", 0))
+            self._bar.update(len(self.locals["dones"]))
+            return True
+
+        def _on_rollout_start(self) -> None:
+            self._finish_pending()
+
+        def _on_rollout_end(self) -> None:
+            eps, self._episodes = self._episodes, []
+            self._window.extend(bool(e.get("success", False)) for e in eps)
+            self._pending = {
+                "timesteps": float(self.num_timesteps), "frames": float(self._frames),
+                "success_rate": float(np.mean([e.get("success", False) for e in eps])) if eps else 0.0,
+                "reward": float(np.mean([e.get("measure", 0.0) for e in eps])) if eps else 0.0,
+                "window_success_rate": float(np.mean(self._window)) if self._window else 0.0,
+                "episodes": float(len(eps)), "errors": float(sum(bool(e.get("error")) for e in eps)),
+            }
+            self._bar.set_postfix(success=f"{self._pending['success_rate']:.2f}")
+
+        def _on_training_end(self) -> None:
+            self._finish_pending()
+            self._bar.close()
+
+        def _finish_pending(self) -> None:
+            if self._pending is None:
+                return
+            values = self.model.logger.name_to_value
+            row = dict(self._pending)
+            for ours, theirs in (("policy_loss", "train/policy_loss"), ("value_loss", "train/value_loss"),
+                                 ("entropy", "train/entropy_loss")):
+                if theirs in values:
+                    row[ours] = float(-values[theirs] if ours == "entropy" else values[theirs])
+            self._pending = None
+            self.rows.append(row)
+            if on_update is not None:
+                on_update(row)
+
+    return Curve()
+
+
+def train_ln(model: Any, timesteps: int, on_update: Callable[[dict[str, float]], None] | None = None,
+             progress: bool = True, desc: str = "LN") -> list[dict[str, float]]:
+    """Run A2C for ``timesteps`` environment steps (plan episodes); one row per update (``curve_callback``)."""
+    if timesteps == 0:
+        return []
+    callback = curve_callback(on_update, progress, timesteps, desc)
+    model.learn(total_timesteps=int(timesteps), callback=callback, log_interval=None)
+    return callback.rows
+
+
+def predict_plans(policy: Any, x: np.ndarray) -> np.ndarray:
+    """(N, 6) deterministic plans (per-dimension argmax) of an A2C policy for (N, D) inputs."""
+    actions, _ = policy.predict(np.asarray(x, np.float32), deterministic=True)
+    return np.asarray(actions, np.int64).reshape(len(x), -1)
+
+
+def ln_policy(policy: Any, pointnet: Any, task_name: str, texts: Sequence[str], seeds: Sequence[int], n_points: int):
+    """An ``envs.trials.Policy`` executing the LN's deterministic plan for the live scene's x."""
+    from prl.features import scene_features
+
+    def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
+        x = scene_features(task_name, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)],
+                           pointnet, n_points)
+        return predict_plans(policy, x)[0].tolist()
+
+    return choose
+
+
+def save_ln(model: Any, path: str | Path) -> Path:
+    """Save the A2C as SB3's zip at ``path`` (which must end in .zip); returns ``path``."""
+    path = Path(path)
+    if path.suffix != ".zip":
+        raise ValueError(f"an LN checkpoint is an SB3 zip; {str(path)!r} does not end in .zip")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(str(path))
+    return path
+
+
+def load_ln(path: str | Path) -> Any:
+    """The A2C saved at ``path``; ``FileNotFoundError`` naming it when missing."""
+    from stable_baselines3 import A2C
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no LN checkpoint at {str(path)!r}")
+    return A2C.load(str(path), device="cpu")

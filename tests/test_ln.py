@@ -1,0 +1,286 @@
+"""The Learning Network: paper settings, demonstration pre-training, the plan and joint-control envs, save/load."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from prl.ln import PAPER_A2C, Demonstrations, LNConfig, load_ln, make_ln, predict_plans, pretrain, save_ln
+
+REPO = Path(__file__).resolve().parents[1]
+TINY_PN = {"n_points": 64, "n_shapes": 48, "n_val": 16, "epochs": 1, "channels": (16, 32), "head": (256,), "seed": 5}
+
+
+class Bandit(gym.Env):
+    """A contextual bandit: x ~ N(0, 1)^8; the expert action is (2, 1) when x[0] > 0, else (0, 3); reward 1 for it."""
+
+    def __init__(self) -> None:
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (8,), np.float32)
+        self.action_space = gym.spaces.MultiDiscrete([3, 4])
+        self.rng = np.random.default_rng(0)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = self.rng.normal(size=8).astype(np.float32)
+        return self.x, {}
+
+    def step(self, action):
+        ok = bool(np.array_equal(np.asarray(action), expert(self.x[None])[0]))
+        return self.x, float(ok), True, False, {"success": ok, "measure": float(ok)}
+
+
+def expert(x: np.ndarray) -> np.ndarray:
+    return np.where(x[:, :1] > 0, [[2, 1]], [[0, 3]]).astype(np.int64)
+
+
+def bandit_demos(n: int = 256, seed: int = 1) -> Demonstrations:
+    x = np.random.default_rng(seed).normal(size=(n, 8)).astype(np.float32)
+    return Demonstrations(x, expert(x), np.ones(n, np.float32))
+
+
+def bandit_model(cfg: LNConfig | None = None):
+    return make_ln(Bandit(), cfg or LNConfig(), np.zeros(8), np.ones(8))
+
+
+def expert_prob_and_value(model, x: np.ndarray) -> tuple[float, float]:
+    obs = torch.as_tensor(x)
+    with torch.no_grad():
+        values, log_prob, _ = model.policy.evaluate_actions(obs, torch.as_tensor(expert(x)))
+    return float(log_prob.exp().mean()), float(values.mean())
+
+
+def test_a2c_settings_are_the_papers() -> None:
+    assert PAPER_A2C == {"learning_rate": 7e-4, "steps_per_update": 64, "gamma": 0.99, "gae_lambda": 0.95,
+                         "ent_coef": 0.01, "hidden": (256, 256), "timesteps": 3200}
+    cfg = LNConfig()
+    assert {k: getattr(cfg, k) for k in PAPER_A2C} == PAPER_A2C
+    model = bandit_model()
+    assert (model.learning_rate, model.n_steps * model.n_envs, model.gamma, model.gae_lambda, model.ent_coef) == \
+        (7e-4, 64, 0.99, 0.95, 0.01)
+    widths = [m.out_features for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
+    assert widths == [256, 256]
+    assert [m.out_features for m in model.policy.mlp_extractor.value_net if isinstance(m, torch.nn.Linear)] == [256, 256]
+    assert LNConfig(n_envs=2).n_steps == 32
+    params = cfg.params()  # SB3's defaults that the paper leaves open are recorded too
+    assert params["sb3.vf_coef"] == 0.5 and params["sb3.max_grad_norm"] == 0.5 and params["ln.timesteps"] == 3200
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"n_envs": 3}, "multiple of n_envs"), ({"pretrain_mode": "dagger"}, "unknown pretrain_mode 'dagger'"),
+    ({"timesteps": -1}, "timesteps"), ({"learning_rate": float("nan")}, "learning_rate"), ({"hidden": (256, 0)}, "hidden"),
+])
+def test_bad_ln_config_is_named(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        LNConfig(**kwargs)
+
+
+def test_actor_critic_pretraining_raises_expert_probability_and_critic_estimate() -> None:
+    model = bandit_model()
+    x_test = np.random.default_rng(9).normal(size=(128, 8)).astype(np.float32)
+    p0, v0 = expert_prob_and_value(model, x_test)
+    assert p0 < 0.2  # 1 of 12 joint actions at initialisation
+    rows = pretrain(model, bandit_demos(), "actor_critic", epochs=15, seed=0)
+    p1, v1 = expert_prob_and_value(model, x_test)
+    assert p1 > 0.8 and p1 > p0 + 0.5
+    assert abs(v1 - 1.0) < 0.25 and abs(v0) < 0.3  # the critic learned the demonstrations' reward (1)
+    assert rows[-1]["actor_loss"] < rows[0]["actor_loss"] and rows[-1]["critic_loss"] < rows[0]["critic_loss"]
+    assert np.mean(predict_plans(model.policy, x_test) == expert(x_test)) > 0.9
+
+
+def test_bc_trains_the_actor_and_leaves_the_critic_as_it_was() -> None:
+    model = bandit_model()
+    x_test = np.random.default_rng(9).normal(size=(128, 8)).astype(np.float32)
+    _, v0 = expert_prob_and_value(model, x_test)
+    pretrain(model, bandit_demos(), "bc", epochs=15, seed=0)
+    p1, v1 = expert_prob_and_value(model, x_test)
+    assert p1 > 0.8 and v1 == pytest.approx(v0, abs=1e-6)
+
+
+def test_rl_after_pretraining_keeps_solving_the_bandit() -> None:
+    from prl.ln import train_ln
+
+    model = bandit_model(LNConfig(timesteps=128))
+    pretrain(model, bandit_demos(), "actor_critic", epochs=15, seed=0)
+    rows = train_ln(model, 128, progress=False)
+    assert [r["timesteps"] for r in rows] == [64.0, 128.0]
+    assert all(r["episodes"] == 64 for r in rows) and rows[-1]["success_rate"] > 0.7
+    assert {"policy_loss", "value_loss", "entropy"} <= rows[0].keys()
+
+
+def test_demo_steps_beyond_the_demonstrations_are_refused() -> None:
+    demos = bandit_demos(10)
+    assert len(demos.take(10, seed=0).x) == 10 and len(demos.take(0, seed=0).x) == 0
+    with pytest.raises(ValueError, match="demo_steps=11 exceeds the 10 demonstration transitions"):
+        demos.take(11, seed=0)
+
+
+def test_task_demonstrations_name_what_is_missing() -> None:
+    from prl.ln import task_demonstrations
+
+    x, plans = np.zeros((2, 4), np.float32), np.zeros((2, 6), np.int64)
+    got = task_demonstrations("hammer", "nail_descent_cm", x, plans, ["hammer", "sweep"],
+                              [{"nail_descent_cm": 1.5}, {"cubes_in_zone": 5}])
+    assert got.reward.tolist() == [1.5] and len(got.x) == 1
+    with pytest.raises(ValueError, match="no demonstration of task 'unscrew'"):
+        task_demonstrations("unscrew", "turn_deg", x, plans, ["hammer", "sweep"], [{}, {}])
+    with pytest.raises(ValueError, match="records no 'nail_descent_cm'"):
+        task_demonstrations("hammer", "nail_descent_cm", x, plans, ["hammer", "sweep"], [{}, {}])
+
+
+def test_save_and_load_give_identical_actions(tmp_path: Path) -> None:
+    model = bandit_model()
+    pretrain(model, bandit_demos(), "actor_critic", epochs=2, seed=0)
+    x = np.random.default_rng(3).normal(size=(64, 8)).astype(np.float32)
+    path = save_ln(model, tmp_path / "ln.zip")
+    again = load_ln(path)
+    np.testing.assert_array_equal(predict_plans(again.policy, x), predict_plans(model.policy, x))
+    torch.testing.assert_close(again.policy.features_extractor.mean, model.policy.features_extractor.mean)
+    with pytest.raises(FileNotFoundError, match="no LN checkpoint"):
+        load_ln(tmp_path / "missing.zip")
+    with pytest.raises(ValueError, match="does not end in .zip"):
+        save_ln(model, tmp_path / "ln.pt")
+
+
+def test_registered_policy_reloads_with_identical_actions(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import mlflow
+
+    from flows.ln import register_policy
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    from prl import tracking
+
+    tracking.configure("prl")
+    model = bandit_model()
+    pretrain(model, bandit_demos(), "actor_critic", epochs=2, seed=0)
+    with mlflow.start_run():
+        mismatches = register_policy(model, np.random.default_rng(3).normal(size=(32, 8)).astype(np.float32))
+    assert mismatches == 0
+    assert len(mlflow.tracking.MlflowClient().search_model_versions("name='prl-ln'")) == 1
+
+
+def test_ln_points_and_sweeps_name_bad_input() -> None:
+    from flows.ablation import sweep_points
+    from flows.ln import LNPoint
+
+    with pytest.raises(ValueError, match="unknown LN variant 'ppo'"):
+        LNPoint("hammer", "ppo")
+    with pytest.raises(ValueError, match="joint-control baseline has no demonstration"):
+        LNPoint("hammer", "joint", 1280)
+    points = sweep_points(["hammer"], ["physics", "bc", "joint"], [0, 1280], [0, 1, 2])
+    assert [p.name for p in points[:3]] == ["ln-hammer-physics-k0-seed0", "ln-hammer-physics-k0-seed1",
+                                            "ln-hammer-physics-k0-seed2"]
+    assert len(points) == 6 + 3 + 3  # physics K=0 and K=1280, bc K=1280, joint once; 3 seeds each
+
+
+def test_unknown_task_is_named(tmp_path: Path) -> None:
+    from envs.joint_env import JointControlEnv
+    from envs.plan_env import PlanEnv
+
+    with pytest.raises(ValueError, match="unknown task 'hamer'"):
+        PlanEnv("hamer", tmp_path / "pn.pt")
+    with pytest.raises(ValueError, match="unknown task 'hamer'"):
+        JointControlEnv("hamer")
+
+
+def test_two_processes_logging_at_once_lose_nothing(tmp_path: Path) -> None:
+    """Two workers (as in the ablation sweep) write child runs of one parent into one sqlite store at once."""
+    import mlflow
+
+    from prl import tracking
+
+    env = dict(os.environ, MLFLOW_TRACKING_URI=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    os.environ["MLFLOW_TRACKING_URI"] = env["MLFLOW_TRACKING_URI"]
+    try:
+        tracking.configure("prl")
+        with mlflow.start_run(run_name="parent") as parent:
+            pass
+        code = ("import sys, mlflow; from prl import tracking; tracking.configure('prl')\n"
+                "with tracking.child_run(sys.argv[1], parent_run_id=sys.argv[2]):\n"
+                "    for i in range(150):\n"
+                "        mlflow.log_metrics({'ln/a': i, 'ln/b': 2 * i}, step=i)\n")
+        procs = [subprocess.Popen([sys.executable, "-c", code, f"w{k}", parent.info.run_id], cwd=REPO, env=env,
+                                  stderr=subprocess.PIPE, text=True) for k in range(2)]
+        errors = [p.communicate(timeout=300)[1] for p in procs]
+        assert [p.returncode for p in procs] == [0, 0], errors
+        runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent.info.run_id}'", output_format="list")
+        assert sorted(r.info.run_name for r in runs) == ["w0", "w1"]
+        client = mlflow.tracking.MlflowClient()
+        for r in runs:
+            assert r.info.status == "FINISHED"
+            assert [m.step for m in client.get_metric_history(r.info.run_id, "ln/b")] == list(range(150))
+    finally:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+
+
+# ----------------------------------------------------------------------------- simulation tier
+
+
+@pytest.fixture(scope="module")
+def pointnet_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An untrained PointNet (the plan env only needs a fixed encoder)."""
+    from prl.pointnet import PointNetConfig, PointNetEncoder, save_pointnet
+
+    cfg = PointNetConfig(**TINY_PN)
+    torch.manual_seed(0)
+    return save_pointnet(PointNetEncoder(cfg).eval(), cfg, tmp_path_factory.mktemp("pn") / "pn.pt")
+
+
+@pytest.mark.sim
+def test_plan_env_executes_one_plan_per_terminal_step(pointnet_path: Path) -> None:
+    from envs.plan_env import PlanEnv, ln_scene_seed
+    from envs.tasks import task_class
+
+    env = PlanEnv("hammer", pointnet_path, n_points=64, run_seed=5)
+    try:
+        assert env.action_space.nvec.tolist() == [7, 7, 6, 4, 6, 7] and env.observation_space.shape == (1680,)
+        with pytest.raises(RuntimeError, match="before reset"):
+            env.step(task_class("hammer").expert_plan)
+        x, info = env.reset()
+        assert x.shape == (1680,) and np.all(np.isfinite(x)) and info["scene_seed"] == ln_scene_seed(5, 0, 0)
+        with pytest.raises(ValueError, match="7"):
+            env.step([7, 0, 0, 0, 0, 0])
+        _, reward, terminated, truncated, info = env.step(task_class("hammer").expert_plan)
+        sim = env._env.unwrapped.evaluate()  # the reward is the simulated nail descent, read after the episode
+        assert terminated and not truncated
+        assert reward == pytest.approx(float(sim["nail_descent_cm"][0]), abs=1e-6) and reward > 0.5
+        assert info["success"] and info["measure"] == reward and info["frames"] > 700
+        x2, info2 = env.reset()  # the next scene of the stream
+        assert info2["scene_seed"] == ln_scene_seed(5, 0, 1) and not np.array_equal(x, x2)
+        _, reward2, *_ = env.step([6, 6, 5, 3, 5, 6])  # wrong in every dimension
+        assert reward2 < 0.05
+        x3, _ = env.reset(options={"scene_seed": ln_scene_seed(5, 0, 0)})  # the same scene again: the same x
+        np.testing.assert_allclose(x3, x, atol=1e-5)
+    finally:
+        env.close()
+
+
+@pytest.mark.sim
+def test_joint_env_takes_150_steps_of_10_frames() -> None:
+    from envs.joint_env import JointControlEnv
+
+    env = JointControlEnv("hammer", run_seed=1)
+    try:
+        assert env.action_space.shape == (30,)
+        obs, _ = env.reset()
+        assert obs.shape == env.observation_space.shape and obs[-1] == 0.0
+        rng = np.random.default_rng(0)
+        total, dones = 0.0, []
+        for _ in range(150):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-0.05, 0.05, 30))
+            total += reward
+            dones.append(terminated)
+            assert not truncated
+        assert dones == [False] * 149 + [True]
+        assert env._env.unwrapped.elapsed_steps.item() * 5 == 1500 and info["frames"] == 1500
+        assert total == pytest.approx(info["measure"], abs=1e-6)  # the return is the task's measure at the end
+        with pytest.raises(ValueError, match="30 values"):
+            env.step(np.zeros(29))
+    finally:
+        env.close()
