@@ -99,8 +99,15 @@ class JointControlEnv(gym.Env):
         target = self._low + (np.clip(a, -1.0, 1.0) + 1.0) / 2.0 * (self._high - self._low)
         info: dict[str, Any] = {"scene_seed": self.scene_seed, "error": "", "fault": ""}
         try:
-            for _ in range(self._repeat):
-                obs, _, _, _, sim_info = self._env.step(target.astype(np.float32))
+            import warnings
+
+            import torch
+
+            command = torch.as_tensor(target, dtype=torch.float32)[None]
+            with warnings.catch_warnings():  # ManiSkill's NaN check calls np.isnan on the tensor (NumPy 2 deprecation)
+                warnings.simplefilter("ignore", DeprecationWarning)
+                for _ in range(self._repeat):
+                    obs, _, _, _, sim_info = self._env.step(command)
             measure = float(sim_info[self.measure_key].reshape(-1)[0])
             success = bool(sim_info["success"].reshape(-1)[0])
         except Exception as exc:  # noqa: BLE001 - one episode's error must not end training

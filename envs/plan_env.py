@@ -139,7 +139,7 @@ class PlanEnv(gym.Env):
                 self.close()
                 if attempt == tries - 1:
                     raise
-        text = self.texts[self.episode % len(self.texts)]
+        text = self.texts[scene_seed % len(self.texts)]  # the same scene always reads the same sentence
         x = scene_features(self.task, scene_seed, params, x_manip, text, self.pointnet, self.n_points)[0]
         return np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 

@@ -130,9 +130,27 @@ def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, 
     @flow(name="prl-ln-points", task_runner=make_task_runner(workers, dask_address))
     def _points(todo: list[LNPoint]) -> list[dict[str, Any]]:
         futures = [ln_point.submit(p, setup, parent_id) for p in todo]
+        _watch(parent_id, {p.name for p in todo}, len(todo) * setup.timesteps, futures)
         return [f.result() for f in futures]
 
     return {s["name"]: s for s in _points(todo)}
+
+
+def _watch(parent_id: str, names: set[str], total: int, futures: list, period_s: float = 10.0) -> None:
+    """A progress bar over the sweep's timesteps, read from the points' ``ln/timesteps`` metric in MLflow."""
+    import time
+
+    import mlflow
+    from tqdm.auto import tqdm
+
+    with tqdm(total=total, desc="LN sweep", unit="timestep") as bar:
+        while not all(f.wrapped_future.done() for f in futures):
+            runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent_id}'", output_format="list")
+            done = [r for r in runs if r.data.tags.get("ln_point") in names]
+            bar.n = int(sum(r.data.metrics.get("ln/timesteps", 0.0) for r in done))
+            bar.set_postfix(points_finished=sum(r.info.status == "FINISHED" for r in done))
+            bar.refresh()
+            time.sleep(period_s)
 
 
 def _repo_id_of(root: Path) -> str:

@@ -114,7 +114,7 @@ def _log_rows(rows: list[dict[str, float]], prefix: str, step_key: str | None) -
 
     for i, row in enumerate(rows):
         step = int(row[step_key]) if step_key else i
-        mlflow.log_metrics({f"{prefix}/{k}": float(v) for k, v in row.items() if k != step_key}, step=step)
+        mlflow.log_metrics({f"{prefix}/{k}": float(v) for k, v in row.items()}, step=step)
 
 
 def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -> dict[str, Any]:

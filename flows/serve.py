@@ -7,6 +7,8 @@ process registers the deployments and executes their runs; trigger one with e.g.
     prefect deployment run 'prl-full-pipeline/quick' --param overrides='{"demos_per_task": 8}'
     prefect deployment run 'prl-full-pipeline/paper'
     prefect deployment run 'prl-rn-eval/default' --param rn_path=/tmp/rnrun/models/rn-seed0.pt
+    prefect deployment run 'prl-ln-ablation/default' --param dataset_root=outputs/datasets/hammer-seed0 \
+        --param pointnet_path=outputs/models/pointnet-<key>.pt --param seeds='[0, 1, 2]'
 
 Runs execute in this process, with the repo as working directory, so they use the same
 MLflow store (``<repo>/mlflow.db``) as ``python -m flows.full_pipeline``.
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 from prefect import serve
 
+from flows.ablation import ablation
 from flows.evaluate_rn import evaluate_rn
 from flows.full_pipeline import full_pipeline
 
@@ -28,6 +31,8 @@ def main() -> None:
                                     description="The paper's scale (2,000 demos per task)."),
         evaluate_rn.to_deployment(name="default", description="A trained RN checkpoint in simulation on unseen "
                                   "scenes (rn_path required; first_seed, scenes, randomization, decodings)."),
+        ablation.to_deployment(name="default", description="The LN ablation sweep (Fig 8): dataset_root and "
+                               "pointnet_path required; tasks, variants, demo_steps, seeds, timesteps, workers."),
     )
 
 

@@ -46,13 +46,14 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # no pages of scheduler and worker start-up chatter
     return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                           "dashboard_address": None, "env": worker_env(),
-                                          "silence_logs": logging.WARNING})  # no pages of worker start-up chatter
+                                          "silence_logs": logging.WARNING})
 
 
 def worker_env() -> dict[str, str]:
-    """Environment for local Dask workers: the Prefect API URL this process uses.
+    """Environment for local Dask workers: the Prefect API URL this process uses, Dask's logs at warnings only.
 
     When ``PREFECT_API_URL`` is unset, Prefect's temporary server of this process is started (if it
     is not yet) and its URL is passed on, so workers report to it instead of starting their own.
@@ -64,7 +65,7 @@ def worker_env() -> dict[str, str]:
     if not url:
         with get_client(sync_client=True) as client:
             url = str(client.api_url)
-    return {"PREFECT_API_URL": str(url).rstrip("/")}
+    return {"PREFECT_API_URL": str(url).rstrip("/"), "DASK_LOGGING__DISTRIBUTED": "warning"}
 
 
 def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None:

@@ -239,13 +239,13 @@ def test_plan_env_executes_one_plan_per_terminal_step(pointnet_path: Path) -> No
 
     env = PlanEnv("hammer", pointnet_path, n_points=64, run_seed=5)
     try:
-        assert env.action_space.nvec.tolist() == [7, 7, 6, 4, 6, 7] and env.observation_space.shape == (1680,)
+        assert env.action_space.nvec.tolist() == list(env.plb.sizes) and env.observation_space.shape == (1680,)
         with pytest.raises(RuntimeError, match="before reset"):
             env.step(task_class("hammer").expert_plan)
         x, info = env.reset()
         assert x.shape == (1680,) and np.all(np.isfinite(x)) and info["scene_seed"] == ln_scene_seed(5, 0, 0)
         with pytest.raises(ValueError, match="7"):
-            env.step([7, 0, 0, 0, 0, 0])
+            env.step([7, 0, 0, 0, 0, 0])  # a0 has 7 choices: 0..6
         _, reward, terminated, truncated, info = env.step(task_class("hammer").expert_plan)
         sim = env._env.unwrapped.evaluate()  # the reward is the simulated nail descent, read after the episode
         assert terminated and not truncated
@@ -253,7 +253,7 @@ def test_plan_env_executes_one_plan_per_terminal_step(pointnet_path: Path) -> No
         assert info["success"] and info["measure"] == reward and info["frames"] > 700
         x2, info2 = env.reset()  # the next scene of the stream
         assert info2["scene_seed"] == ln_scene_seed(5, 0, 1) and not np.array_equal(x, x2)
-        _, reward2, *_ = env.step([6, 6, 5, 3, 5, 6])  # wrong in every dimension
+        _, reward2, *_ = env.step([6, 6, 5, 3, 6, 5])  # wrong in every dimension
         assert reward2 < 0.05
         x3, _ = env.reset(options={"scene_seed": ln_scene_seed(5, 0, 0)})  # the same scene again: the same x
         np.testing.assert_allclose(x3, x, atol=1e-5)

@@ -112,7 +112,7 @@ def test_worker_env_passes_a_set_api_url_on() -> None:
     from flows.synthesize import worker_env
 
     with temporary_settings({PREFECT_API_URL: "http://10.1.2.3:4200/api/"}):
-        assert worker_env() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api"}
+        assert worker_env() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api", "DASK_LOGGING__DISTRIBUTED": "warning"}
 
 
 def _worker_api_url() -> str:
