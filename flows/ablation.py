@@ -73,12 +73,11 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
              variants: list[str] | None = None, demo_steps: list[int] | None = None, seeds: list[int] | None = None,
              timesteps: int = 3200, eval_scenes: int = 50, eval_seed: int = 0, workers: int = 2,
              dask_address: str | None = None, output_dir: str = "outputs/ablation", n_points: int = 512,
-             pretrain_epochs: int = 10) -> dict[str, Any]:
+             pretrain_epochs: int = 10, steps_per_update: int = 64) -> dict[str, Any]:
     """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into ``output_dir``."""
     import mlflow
 
     from envs.trials import eval_scene_seeds
-    from flows.ln import read_demonstrations
     from flows.synthesize import make_task_runner
     from flows.train_rn import rn_features
     from prl.export import read_scenes
@@ -88,26 +87,25 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
                           list(seeds if seeds is not None else [0, 1, 2]))
     root = Path(dataset_root)
     repo_id = repo_id or _repo_id_of(root)
-    read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
+    scenes = read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
+    for p in points:  # K beyond the demonstrations available (one per episode): an error before any work
+        available = sum(s["task"] == p.task for s in scenes)
+        if p.demo_steps > available or (p.variant != "joint" and not available):
+            raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
+                             f"{str(root)!r}; synthesise more or sweep fewer steps")
     out = Path(output_dir)
     settings = {"dataset_root": str(root.resolve()), "pointnet": str(Path(pointnet_path).resolve()),
                 "timesteps": timesteps, "eval_scenes": eval_scenes, "eval_seed": eval_seed,
-                "pretrain_epochs": pretrain_epochs, "n_points": n_points}
+                "pretrain_epochs": pretrain_epochs, "n_points": n_points, "steps_per_update": steps_per_update}
     key = _sweep_key({**settings, "points": [p.name for p in points]})
     setup = LNSetup(timesteps=timesteps, demo_dir=out / "demos", pointnet_path=Path(pointnet_path), out_dir=out / "points",
                     eval_seeds=tuple(eval_scene_seeds(eval_seed, eval_scenes)), n_points=n_points, n_envs=1,
-                    pretrain_epochs=pretrain_epochs, progress=False)
+                    steps_per_update=steps_per_update, pretrain_epochs=pretrain_epochs, progress=False)
     tracking.configure("prl")
     with _parent(key, f"ln-ablation-{key}", settings) as parent:
         if not all((setup.demo_dir / f"demos-{t}.npz").is_file() for t in tasks):
             counts = write_demonstrations(setup.demo_dir, tasks, rn_features(root, repo_id, Path(pointnet_path), n_points))
             print("demonstrations per task: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
-        for p in points:  # K beyond the demonstrations available: an error before any point starts
-            if p.demo_steps:
-                available = len(read_demonstrations(setup.demo_dir, p.task).x)
-                if p.demo_steps > available:
-                    raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations "
-                                     f"in {str(root)!r}; synthesise more or sweep fewer steps")
         done = finished_points(parent.info.run_id)
         summaries = {p.name: json.loads((setup.out_dir / f"{p.name}.json").read_text()) for p in points
                      if p.name in done and (setup.out_dir / f"{p.name}.json").is_file()}

@@ -73,6 +73,8 @@ class LNSetup:
     n_frames: int | None = None
     """Physics frames per plan episode (None: the executor's default)."""
     n_envs: int = 2
+    steps_per_update: int = 64
+    """Samples per A2C update (paper: 64; smaller only for quick checks)."""
     pretrain_epochs: int = 10
     register: bool = False
     """Register the final policy as the MLflow model ``prl-ln`` (the pipeline does; sweep points do not)."""
@@ -130,7 +132,8 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     from prl.stats import wilson_interval
 
     task_class(point.task)  # ValueError naming an unknown task before anything runs
-    cfg = LNConfig(timesteps=setup.timesteps, n_envs=setup.n_envs, demo_steps=point.demo_steps,
+    cfg = LNConfig(timesteps=setup.timesteps, n_envs=setup.n_envs, steps_per_update=setup.steps_per_update,
+                   demo_steps=point.demo_steps,
                    pretrain_mode="bc" if point.variant == "bc" else "actor_critic",
                    pretrain_epochs=setup.pretrain_epochs, seed=point.seed)
     joint = point.variant == "joint"

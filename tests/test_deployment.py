@@ -32,7 +32,7 @@ def _wait(check, timeout_s: float, what: str, procs: list[subprocess.Popen]) -> 
         try:
             if check():
                 return
-        except Exception:  # noqa: BLE001 - not up yet
+        except Exception:  # noqa: BLE001,S110 - not up yet
             pass
         time.sleep(1.0)
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")

@@ -148,23 +148,6 @@ def test_save_and_load_give_identical_actions(tmp_path: Path) -> None:
         save_ln(model, tmp_path / "ln.pt")
 
 
-def test_registered_policy_reloads_with_identical_actions(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import mlflow
-
-    from flows.ln import register_policy
-
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    from prl import tracking
-
-    tracking.configure("prl")
-    model = bandit_model()
-    pretrain(model, bandit_demos(), "actor_critic", epochs=2, seed=0)
-    with mlflow.start_run():
-        mismatches = register_policy(model, np.random.default_rng(3).normal(size=(32, 8)).astype(np.float32))
-    assert mismatches == 0
-    assert len(mlflow.tracking.MlflowClient().search_model_versions("name='prl-ln'")) == 1
-
-
 def test_ln_points_and_sweeps_name_bad_input() -> None:
     from flows.ablation import sweep_points
     from flows.ln import LNPoint
@@ -284,3 +267,56 @@ def test_joint_env_takes_150_steps_of_10_frames() -> None:
             env.step(np.zeros(29))
     finally:
         env.close()
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A LeRobot dataset of 3 real hammer demos (episodes shortened to 300 frames)."""
+    import envs  # noqa: F401
+    from envs.executor import ExecutorConfig, PlanExecutor
+    from envs.tasks import make_env
+    from prl.demo import from_episode, save_demo
+    from prl.export import export_lerobot
+    from prl.plb import load_plb
+
+    out = tmp_path_factory.mktemp("ln_demos")
+    env = make_env("hammer")
+    try:
+        executor = PlanExecutor(env, ExecutorConfig(n_frames=300))
+        paths = [save_demo(from_episode("hammer", seed, load_plb().texts("hammer")[0],
+                                        executor.run([0, 3, 2, 0, 0, 1], seed=seed), env), out / f"ep{seed}.npz")
+                 for seed in (3, 4, 5)]
+    finally:
+        env.close()
+    return export_lerobot(paths, out / "dataset", repo_id="prl/hammer").root
+
+
+@pytest.mark.sim
+def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dataset: Path, pointnet_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    import mlflow
+
+    from flows.ablation import ablation
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    monkeypatch.setenv("PREFECT_HOME", str(tmp_path / "prefect"))
+    kwargs = {"tasks": ["hammer"], "variants": ["physics", "joint"], "demo_steps": [2], "seeds": [0],
+              "timesteps": 8, "steps_per_update": 4, "eval_scenes": 1, "workers": 2, "n_points": 64,
+              "output_dir": str(tmp_path / "sweep")}
+    with pytest.raises(ValueError, match="demo_steps=4 exceeds the 3 hammer demonstrations"):
+        ablation(str(tiny_dataset), str(pointnet_path), **{**kwargs, "demo_steps": [4]})
+    first = ablation(str(tiny_dataset), str(pointnet_path), **kwargs)
+    assert sorted(first) == ["ln-hammer-joint-k0-seed0", "ln-hammer-physics-k2-seed0"]
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
+    assert sorted(r.info.run_name for r in runs) == sorted(first) and {r.info.status for r in runs} == {"FINISHED"}
+    parents = {r.data.tags["mlflow.parentRunId"] for r in runs}
+    assert len(parents) == 1  # one sweep parent, both points under it, logged from two Dask workers
+    physics = first["ln-hammer-physics-k2-seed0"]
+    assert [r["timesteps"] for r in physics["rows"]] == [4.0, 8.0] and len(physics["pretrain"]) == 10
+    assert physics["eval"]["n"] == 1 and first["ln-hammer-joint-k0-seed0"]["eval"]["n"] == 1
+    assert (tmp_path / "sweep" / "fig8_hammer_timesteps.png").stat().st_size > 10_000
+    again = ablation(str(tiny_dataset), str(pointnet_path), **kwargs)  # resumed: nothing re-run
+    assert again == first
+    runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
+    assert len(runs) == 2
