@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
@@ -64,7 +64,7 @@ class PipelineConfig:
     """RL timesteps (plan episodes) of each LN run (paper: 3200; one A2C update takes 64)."""
     ln_demo_steps: int | None = None
     """Demonstration transitions the LN is pre-trained on (paper's ablation: 1280; at most demos_per_task;
-    None: all of a task's demos, i.e. demos_per_task; 0: pure RL)."""
+    None: 1280 or all of a task's demos if it has fewer; 0: pure RL)."""
     ln_envs: int = 2
     """Plan environments stepped in parallel by each LN run (a divisor of 64)."""
 
@@ -92,7 +92,7 @@ class PipelineConfig:
                               f"demos_per_task={self.demos_per_task} with {len(self.tasks)} task(s) "
                               f"(pass more demos, or skip the RN stages)")
         if self.ln_demo_steps is None:
-            object.__setattr__(self, "ln_demo_steps", self.demos_per_task)
+            object.__setattr__(self, "ln_demo_steps", min(PAPER_LN_DEMO_STEPS, self.demos_per_task))
         if isinstance(self.ln_demo_steps, bool) or not isinstance(self.ln_demo_steps, int) or self.ln_demo_steps < 0:
             raise ConfigError(f"ln_demo_steps must be a non-negative integer, got {self.ln_demo_steps!r}")
         if self.train_rn and self.train_ln and self.ln_demo_steps > self.demos_per_task:
@@ -109,11 +109,14 @@ class PipelineConfig:
         object.__setattr__(self, "output_dir", out.resolve())
 
 
+PAPER_LN_DEMO_STEPS = 1280
+"""The demonstration steps of the paper's LN (its ablation's reference point)."""
+
 PROFILES: dict[str, dict] = {
     "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4,
               "ln_timesteps": 64},
     "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16, "rn_epochs": 200, "rn_eval_scenes": 50,
-              "pn_epochs": 30, "pn_shapes": 4000, "ln_timesteps": 3200, "ln_demo_steps": 1280},
+              "pn_epochs": 30, "pn_shapes": 4000, "ln_timesteps": 3200},
 }
 
 
@@ -121,6 +124,5 @@ def make_config(profile: str = "quick", **overrides) -> PipelineConfig:
     """The named profile's config with ``overrides`` (None values ignored) applied."""
     if profile not in PROFILES:
         raise ConfigError(f"unknown profile {profile!r}; known: {sorted(PROFILES)}")
-    base = replace(PipelineConfig(), profile=profile, **PROFILES[profile])
     clean = {k: v for k, v in overrides.items() if v is not None}
-    return replace(base, **clean)
+    return PipelineConfig(profile=profile, **{**PROFILES[profile], **clean})  # one construction: derived defaults follow

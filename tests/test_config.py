@@ -74,3 +74,16 @@ def test_stale_hand_model_is_named(tmp_path: Path) -> None:
     urdf.unlink()
     with pytest.raises(HandModelError, match="hand.urdf' is missing"):
         verify_generated(urdf=urdf)
+
+
+def test_ln_demo_steps_follow_the_demos_and_never_exceed_them() -> None:
+    assert make_config("quick").ln_demo_steps == 4  # all 4 demos of a task
+    assert make_config("quick", demos_per_task=3).ln_demo_steps == 3
+    assert make_config("paper").ln_demo_steps == 1280 and make_config("paper").ln_timesteps == 3200
+    assert make_config("paper", demos_per_task=400).ln_demo_steps == 400
+    assert make_config("quick", ln_demo_steps=0).ln_demo_steps == 0  # pure RL
+    with pytest.raises(ConfigError, match="ln_demo_steps=5 exceeds demos_per_task=4"):
+        make_config("quick", ln_demo_steps=5)
+    with pytest.raises(ConfigError, match="ln_envs must divide the 64 steps"):
+        make_config("quick", ln_envs=3)
+    assert make_config("quick", ln_demo_steps=5, train_ln=False).ln_demo_steps == 5  # no LN: nothing to refuse
