@@ -23,6 +23,7 @@ An attempt that raises (a PhysX error, a bug) is a failed episode with reward 0 
 from __future__ import annotations
 
 import logging
+import os
 import zlib
 from pathlib import Path
 from typing import Any
@@ -118,17 +119,22 @@ class PlanEnv(gym.Env):
             self._env.close()
         self._env = self._executor = None
 
+    def build(self) -> None:
+        """Create the simulator (done lazily by the first reset; again after an attempt raised)."""
+        from envs.executor import ExecutorConfig, PlanExecutor
+        from envs.tasks import make_env
+
+        if self._env is None:
+            self._env = make_env(self.task, randomization=self.randomization)
+            self._executor = PlanExecutor(self._env, ExecutorConfig(n_frames=self.n_frames))
+
     # ------------------------------------------------------------------ internals
     def _observe(self, scene_seed: int, tries: int = 3) -> np.ndarray:
         """x of the scene ``scene_seed`` after its observation phase (rebuilding the simulator after an error)."""
-        from envs.executor import ExecutorConfig, PlanExecutor
-        from envs.tasks import make_env
         from prl.features import scene_features
 
         for attempt in range(tries):
-            if self._env is None:
-                self._env = make_env(self.task, randomization=self.randomization)
-                self._executor = PlanExecutor(self._env, ExecutorConfig(n_frames=self.n_frames))
+            self.build()
             try:
                 x_manip = self._executor.observe(seed=scene_seed)
                 params = dict(self._env.unwrapped.scene_params)
@@ -157,7 +163,18 @@ def make_vec_env(task: str, n_envs: int = 1, joint: bool = False, run_seed: int 
     fns = [partial(_make_env, joint, task, run_seed, rank, n_envs > 1, kwargs) for rank in range(n_envs)]
     if n_envs == 1:
         return DummyVecEnv(fns)
-    return SubprocVecEnv(fns, start_method="spawn")
+    # one core per env: BLAS/OpenMP pools sized for the whole machine in every worker oversubscribe the cores
+    single = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    saved = {name: os.environ.get(name) for name in single}
+    os.environ.update(single)
+    try:
+        return SubprocVecEnv(fns, start_method="spawn")  # the workers start here and inherit the environment
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _make_env(joint: bool, task: str, run_seed: int, rank: int, own_process: bool, kwargs: dict[str, Any]) -> gym.Env:
@@ -167,8 +184,13 @@ def _make_env(joint: bool, task: str, run_seed: int, rank: int, own_process: boo
         env: gym.Env = JointControlEnv(task, run_seed=run_seed, rank=rank, **kwargs)
     else:
         env = PlanEnv(task, run_seed=run_seed, rank=rank, **kwargs)
-    if own_process:  # a worker that only steps this env: keep the imports out of every reset's gc.collect()
+    if own_process:  # a worker process that only steps this env
+        import torch
+
         from envs.tasks import fast_resets
 
-        fast_resets().__enter__()
+        torch.set_num_threads(1)  # one core per env: PointNet and the text encoder must not fight the other env
+        if hasattr(env, "build"):
+            env.build()  # the simulator's objects too are made before the freeze
+        fast_resets().__enter__()  # keep the imports out of every reset's gc.collect()
     return env
