@@ -20,7 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from envs.plan_env import ln_scene_seed
+from envs.plan_env import SceneStream
 
 _log = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ JOINT_STEPS = 150
 """Steps per joint-control episode (150 x 10 = 1500 frames)."""
 
 
-class JointControlEnv(gym.Env):
+class JointControlEnv(SceneStream, gym.Env):
     """30-D joint position targets on ``task``'s randomised scenes; see the module docstring."""
 
     metadata = {"render_modes": []}  # noqa: RUF012 (gymnasium class attribute)
@@ -77,13 +77,7 @@ class JointControlEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
-        if seed is not None:
-            self.run_seed, self.episode = int(seed), 0
-        if options and "scene_seed" in options:
-            self.scene_seed = int(options["scene_seed"])
-        else:
-            self.scene_seed = ln_scene_seed(self.run_seed, self.rank, self.episode)
-            self.episode += 1
+        self.next_scene(seed, options)
         if self._env is None:
             self._build()
         obs, _ = self._env.reset(seed=self.scene_seed)

@@ -44,7 +44,28 @@ def ln_scene_seed(run_seed: int, rank: int, episode: int) -> int:
     return zlib.crc32(f"ln/{int(run_seed)}/{int(rank)}/{int(episode)}".encode())
 
 
-class PlanEnv(gym.Env):
+class SceneStream:
+    """The scene-seed stream of the LN's environments: ``run_seed``, ``rank``, the next ``episode`` and the
+    current ``scene_seed`` (see the module docstring)."""
+
+    run_seed: int
+    rank: int
+    episode: int = 0
+    scene_seed: int | None = None
+
+    def next_scene(self, seed: int | None, options: dict[str, Any] | None) -> int:
+        """The scene of the episode a ``reset(seed=..., options=...)`` starts (and the stream advanced past it)."""
+        if seed is not None:
+            self.run_seed, self.episode = int(seed), 0
+        if options and "scene_seed" in options:
+            self.scene_seed = int(options["scene_seed"])
+        else:
+            self.scene_seed = ln_scene_seed(self.run_seed, self.rank, self.episode)
+            self.episode += 1
+        return self.scene_seed
+
+
+class PlanEnv(SceneStream, gym.Env):
     """One plan per episode on ``task``'s randomised scenes; see the module docstring."""
 
     metadata = {"render_modes": []}  # noqa: RUF012 (gymnasium class attribute)
@@ -82,13 +103,7 @@ class PlanEnv(gym.Env):
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
-        if seed is not None:
-            self.run_seed, self.episode = int(seed), 0
-        if options and "scene_seed" in options:
-            self.scene_seed = int(options["scene_seed"])
-        else:
-            self.scene_seed = ln_scene_seed(self.run_seed, self.rank, self.episode)
-            self.episode += 1
+        self.next_scene(seed, options)
         self._x = self._observe(self.scene_seed)
         self._ready = True
         return self._x.copy(), {"scene_seed": self.scene_seed}
