@@ -32,7 +32,7 @@ def test_bad_config_fails_before_work(tmp_path: Path) -> None:
 def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     res = _pipeline(tmp_path, "--tasks", "hammer,sweep", "--scenes", "2", "--no-render", "--output-dir", str(tmp_path / "out"),
                     "--demos-per-task", "3", "--shards", "1", "--workers", "1", "--pn-epochs", "1",
-                    "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1", "--ln-timesteps", "64")
+                    "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1", "--ln-timesteps", "64", "--ln-envs", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     import mlflow
 
