@@ -90,7 +90,9 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
     scenes = read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
     for p in points:  # K beyond the demonstrations available (one per episode): an error before any work
         available = sum(s["task"] == p.task for s in scenes)
-        if p.demo_steps > available or (p.variant != "joint" and not available):
+        if p.variant != "joint" and not available:  # the plan env's x is standardised with the demos' statistics
+            raise ValueError(f"the dataset {str(root)!r} has no {p.task} demonstration; point {p.name} needs some")
+        if p.demo_steps > available:
             raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
                              f"{str(root)!r}; synthesise more or sweep fewer steps")
     out = Path(output_dir)
