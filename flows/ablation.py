@@ -78,8 +78,8 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
     import mlflow
 
     from envs.trials import eval_scene_seeds
+    from flows.features import rn_features
     from flows.synthesize import make_task_runner
-    from flows.train_rn import rn_features
     from prl.export import read_scenes
 
     tasks = list(tasks or ["hammer"])

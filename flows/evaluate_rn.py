@@ -15,13 +15,74 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from prefect import flow
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
 
-from flows.train_rn import BASELINES, DECODINGS, check_pointnet, evaluate_in_sim
+from flows.train_rn import TrainedRN
 from prl import tracking
 from prl.config import PipelineConfig
+from prl.rn_policy import DECODINGS, check_pointnet
+
+#: Plan kinds run next to the RN decodings on the same scenes: a plan sampled from the task prior, the expert plan.
+BASELINES: tuple[str, ...] = ("prior", "expert")
+
+
+@dataclass(frozen=True)
+class RNEval:
+    """Success rates keyed ``<task>/rn/<split>`` (each per plan kind) and the unseen scenes they were measured on."""
+
+    rates: dict[str, dict[str, float]]
+    eval_seeds: tuple[int, ...]
+
+
+@task(name="rn-eval-sim", task_run_name="rn-eval-{task_name}-x{randomization}", cache_policy=NO_CACHE)
+def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int,
+                    n_frames: int, randomization: float, prior_seed: int,
+                    decodings: tuple[str, ...] = DECODINGS) -> dict[str, list]:
+    """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and two baselines: a
+    plan sampled from the task prior the demos were drawn from ('prior') and the task's hand-written
+    expert plan, the same on every scene ('expert'); the outcomes of each, keyed by decoding or baseline."""
+    from envs.trials import plan_set, run_policy, run_trials
+    from prl.plb import load_plb
+    from prl.pointnet import load_pointnet
+    from prl.rn import load_rn
+    from prl.rn_policy import rn_policy
+
+    model = load_rn(rn_path)
+    check_pointnet(model, pointnet_path)
+    texts = list(load_plb().texts(task_name))
+    pointnet = load_pointnet(pointnet_path)
+    out: dict[str, list] = {}
+    for kind in decodings:
+        policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, kind)
+        out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
+                               desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
+    for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True):
+        out[kind] = run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds,
+                               n_frames=n_frames, randomization=randomization)
+    return out
+
+
+@task(name="rn-eval", cache_policy=NO_CACHE)
+def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) -> RNEval:
+    """Execute the RN's plans (each decoding) and the baselines on ``cfg.rn_eval_scenes`` unseen scenes per task,
+    once with the training ranges and once with them scaled by ``cfg.wide_randomization``; log each."""
+    from envs.trials import eval_scene_seeds
+
+    seeds = eval_scene_seeds(cfg.seed, cfg.rn_eval_scenes)
+    rates: dict[str, dict[str, float]] = {}
+    with tracking.child_run("rn-eval", params={"scenes_per_split": cfg.rn_eval_scenes,
+                                               "wide_randomization": cfg.wide_randomization}):
+        for split, scale in (("train_ranges", 1.0), ("wide_ranges", cfg.wide_randomization)):
+            for name in tasks:
+                out = evaluate_in_sim(rn.rn_path, rn.pointnet_path, name, seeds, cfg.n_points, cfg.episode_frames,
+                                      scale, cfg.seed + 31)
+                print(f"{name} ({split}): plans executed on {len(seeds)} unseen scenes")
+                rates[f"{name}/rn/{split}"] = log_rn_eval(name, split, out)
+    return RNEval(rates, tuple(seeds))
 
 
 def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]:

@@ -9,7 +9,7 @@ Wilson interval). Variants: ``physics`` (A2C over the Representation Space, pre-
 critic on ``demo_steps`` demonstrations; 0 is pure RL), ``bc`` (the same with the actor alone
 pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``).
 
-Used by the pipeline's ``ln`` stage (``flows.full_pipeline``) and fanned out by ``flows.ablation``.
+Used by the pipeline's ``ln`` stage (``ln_stage``) and fanned out by ``flows.ablation``.
 """
 
 from __future__ import annotations
@@ -24,7 +24,10 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from flows.evaluate_rn import RNEval
+from flows.features import Features
 from prl import tracking
+from prl.config import PipelineConfig
 
 VARIANTS: tuple[str, ...] = ("physics", "bc", "joint")
 """LN variants: physics-guided A2C with actor+critic pre-training, the same with BC, joint control."""
@@ -83,7 +86,7 @@ class LNSetup:
 
 def write_demonstrations(demo_dir: Path, tasks: list[str], data: dict[str, Any]) -> dict[str, int]:
     """Write each task's demonstration transitions (``prl.ln.task_demonstrations`` of the RN features ``data``,
-    as ``flows.train_rn.rn_features`` returns them) to ``demo_dir/demos-<task>.npz``; the count per task."""
+    as ``flows.features.rn_features`` returns them) to ``demo_dir/demos-<task>.npz``; the count per task."""
     from envs.tasks import task_class
     from prl.ln import task_demonstrations
 
@@ -228,3 +231,25 @@ def ln_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -
     if parent_run_id is not None:
         tracking.configure("prl")
     return run_point(point, setup, parent_run_id)
+
+
+@task(name="ln-stage", task_run_name="ln", cache_policy=NO_CACHE)
+def ln_stage(cfg: PipelineConfig, features: Features, rn_eval: RNEval) -> dict[str, dict[str, float]]:
+    """Stage ``ln`` of the pipeline: one physics-guided LN point per task (child run ``ln-<task>-physics-k<K>-seed<N>``),
+    pre-trained on ``cfg.ln_demo_steps`` of the dataset's demonstrations and evaluated on the RN evaluation's
+    unseen scenes; each final policy registered as ``prl-ln``. Returns the evaluation's success rate per task."""
+    tasks = list(dict.fromkeys(features.data["tasks"]))
+    root = cfg.output_dir / "ln" / f"seed{cfg.seed}"
+    setup = LNSetup(timesteps=cfg.ln_timesteps, demo_dir=root / "demos", pointnet_path=features.pointnet_path,
+                    out_dir=root / "points", eval_seeds=rn_eval.eval_seeds, n_points=cfg.n_points,
+                    n_frames=cfg.episode_frames, n_envs=cfg.ln_envs, register=True)
+    write_demonstrations(setup.demo_dir, tasks, features.data)
+    results = {}
+    for name in tasks:
+        summary = ln_point(LNPoint(name, "physics", cfg.ln_demo_steps, cfg.seed), setup)
+        ev, rows = summary["eval"], summary["rows"]
+        print(f"{name} LN ({cfg.ln_timesteps} timesteps, pre-trained on {cfg.ln_demo_steps} demos): training success "
+              f"{rows[-1]['success_rate'] if rows else float('nan'):.2f} in the last update; deterministic plan "
+              f"{ev['successes']}/{ev['n']} on unseen scenes (95% CI {ev['ci95'][0]:.2f}-{ev['ci95'][1]:.2f})")
+        results[f"{name}/ln"] = {"success_rate": ev["successes"] / max(ev["n"], 1)}
+    return results

@@ -8,6 +8,8 @@ the result does not depend on the number of workers.
 from __future__ import annotations
 
 import logging
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from prefect import flow, task
@@ -15,7 +17,19 @@ from prefect.cache_policies import NO_CACHE
 from prefect_dask import DaskTaskRunner
 
 from envs.synthesis import ShardResult, ShardSpec, split_successes
+from flows.plan_trials import Trials
+from prl import tracking
+from prl.config import PipelineConfig
 from prl.constants import EPISODE_FRAMES
+
+
+@dataclass(frozen=True)
+class Synthesis:
+    """The demos a synthesis run kept: their directory, each task's demo files (sorted) and yield report."""
+
+    demo_dir: Path
+    demo_paths: dict[str, list[Path]]
+    reports: dict[str, dict[str, float]]
 
 
 @task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}", cache_policy=NO_CACHE)
@@ -91,13 +105,52 @@ def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None
             time.sleep(period_s)
 
 
+@flow(name="prl-synthesize")
+def _synthesize(specs: list[ShardSpec]) -> list[ShardResult]:
+    futures = [synthesize_shard.submit(spec) for spec in specs]
+    _watch(specs, futures)
+    return [f.result() for f in futures]
+
+
 def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None) -> list[ShardResult]:
     """Run ``specs`` as a Prefect (sub)flow on a Dask task runner; return the shard results in order."""
+    return _synthesize.with_options(task_runner=make_task_runner(workers, dask_address))(specs)
 
-    @flow(name="prl-synthesize", task_runner=make_task_runner(workers, dask_address))
-    def _synthesize(specs: list[ShardSpec]) -> list[ShardResult]:
-        futures = [synthesize_shard.submit(spec) for spec in specs]
-        _watch(specs, futures)
-        return [f.result() for f in futures]
 
-    return _synthesize(specs)
+def synthesis_dir(cfg: PipelineConfig) -> Path:
+    """Where a run's demos live; keyed on what fixes the attempts, so a re-run resumes there."""
+    return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}"
+
+
+@flow(name="synthesis", log_prints=True, validate_parameters=False)
+def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
+    """Stage ``synthesis`` (a subflow; child run ``synthesis``): ``cfg.demos_per_task`` successful demos per
+    task, attempted on Dask (``synthesize``) after the plan trials, resumed where an earlier run stopped;
+    the yield per task and the demos per minute logged."""
+    import mlflow
+
+    from envs.synthesis import read_attempts, yield_report
+
+    tasks = [t.task for t in trials]
+    with tracking.child_run("synthesis", params={"demos_per_task": cfg.demos_per_task, "n_shards": cfg.n_shards,
+                                                  "workers": cfg.workers, "dask_address": cfg.dask_address}):
+        demo_dir = synthesis_dir(cfg)
+        specs = shard_specs(tasks, cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir, n_frames=cfg.episode_frames)
+        already = sum(r["success"] for spec in specs for r in read_attempts(spec.dir))  # resumed runs
+        t0 = time.perf_counter()
+        shards = synthesize(specs, workers=cfg.workers, dask_address=cfg.dask_address)
+        minutes = (time.perf_counter() - t0) / 60
+        reports = {}
+        for name in tasks:
+            reports[name] = report = yield_report(demo_dir, name)
+            mlflow.log_metrics({f"{name}/{k}": v for k, v in report.items()})
+            mlflow.log_dict(report, f"{name}_yield.json")
+            print(f"{name}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
+                  f"(yield {report['yield']:.2f}; {int(report['errors'])} raised, "
+                  + ", ".join(f"{int(v)} {k.split('/')[1]}" for k, v in report.items() if k.startswith("faults/"))
+                  + ")")
+        new = sum(r.successes for r in shards) - already
+        mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
+        mlflow.log_param("demo_dir", str(demo_dir))
+    demo_paths = {name: sorted(p for r in shards if r.task == name for p in r.demo_paths) for name in tasks}
+    return Synthesis(demo_dir, demo_paths, reports)

@@ -21,6 +21,31 @@ def _pipeline(tmp_path: Path, *args: str, module: str = "flows.full_pipeline") -
                           capture_output=True, text=True, timeout=900, check=False)
 
 
+#: Prints the flow-run graph as Prefect's UI draws it: one "upstream -> downstream" line per edge between the
+#: pipeline's task runs and subflow runs (a task's inputs that are another run's result).
+_GRAPH = r"""
+import asyncio, re
+from prefect.client.orchestration import get_client
+
+async def main():
+    async with get_client() as client:
+        tasks, flows = await client.read_task_runs(), await client.read_flow_runs()
+        flow_names = {f.flow_id: (await client.read_flow(f.flow_id)).name for f in flows}
+        label = {str(t.id): re.sub(r"-([0-9a-f]{3}|[0-9]+)$", "", t.name) for t in tasks}
+        for f in flows:  # a subflow: its wrapper task run and its flow run both read as the flow's name
+            label[str(f.id)] = flow_names[f.flow_id]
+            if f.parent_task_run_id:
+                label[str(f.parent_task_run_id)] = flow_names[f.flow_id]
+        for t in tasks:
+            for inputs in t.task_inputs.values():
+                for i in inputs:
+                    if getattr(i, "id", None) is not None and str(i.id) in label:
+                        print(f"{label[str(i.id)]} -> {label[str(t.id)]}")
+
+asyncio.run(main())
+"""
+
+
 def test_bad_config_fails_before_work(tmp_path: Path) -> None:
     res = _pipeline(tmp_path, "--tasks", "hammer,hamer", "--output-dir", str(tmp_path / "out"))
     assert res.returncode == 2
@@ -42,7 +67,7 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parents) == 1
     assert set(children["tags.mlflow.runName"]) == {"assets", "trials-hammer", "trials-sweep", "synthesis", "labels",
-                                                    "export", "pointnet", "rn-train", "rn-eval",
+                                                    "export", "pointnet", "features", "rn-train", "rn-eval",
                                                     "ln-hammer-physics-k3-seed0", "ln-sweep-physics-k3-seed0"}
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     trials = children[children["tags.mlflow.runName"] == "trials-hammer"].iloc[0]
@@ -88,6 +113,17 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
             assert ev[f"metrics.hammer/{split}/{kind}_ci95_high"] - ev[f"metrics.hammer/{split}/{kind}_ci95_low"] \
                 == pytest.approx(0.7935, abs=1e-3)
     assert len(list((tmp_path / "out" / "models").glob("pointnet-*.pt"))) == 1
+
+    # the Prefect flow-run graph is the pipeline's DAG: each stage's inputs are the earlier stages' results
+    env = dict(os.environ, PREFECT_HOME=str(tmp_path / "prefect"), PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    graph = subprocess.run([sys.executable, "-c", _GRAPH], env=env, capture_output=True, text=True, timeout=300)
+    assert graph.returncode == 0, graph.stderr[-3000:]
+    edges = set(graph.stdout.splitlines())
+    for edge in ("assets -> trials-hammer", "assets -> trials-sweep", "trials-hammer -> synthesis",
+                 "trials-sweep -> synthesis", "synthesis -> labels", "labels -> export", "synthesis -> export",
+                 "assets -> pointnet", "export -> features", "pointnet -> features", "features -> rn-train",
+                 "rn-train -> rn-eval", "rn-eval -> ln", "features -> ln"):
+        assert edge in edges, (edge, sorted(edges))
 
     # LN: one child run per task, pre-trained on the task's 3 demos, one A2C update of 64 plan episodes
     client = mlflow.tracking.MlflowClient()

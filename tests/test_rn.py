@@ -425,7 +425,7 @@ def test_plot_rn_probabilities(tmp_path: Path) -> None:
 
 
 def test_pipeline_decodings_resolve_or_name_what_is_missing() -> None:
-    from flows.train_rn import DECODINGS, decoding
+    from prl.rn_policy import DECODINGS, decoding
     from prl.plb import load_plb
 
     model = RepresentationNetwork(4)
@@ -448,7 +448,7 @@ def test_pipeline_decodings_resolve_or_name_what_is_missing() -> None:
 def test_pointnet_digest_is_checked(tmp_path: Path) -> None:
     import hashlib
 
-    from flows.train_rn import check_pointnet
+    from prl.rn_policy import check_pointnet
     from prl.version import file_digest
 
     model = RepresentationNetwork(4)
