@@ -8,6 +8,7 @@ the result does not depend on the number of workers.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,7 +61,10 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
-    logging.getLogger("distributed").setLevel(logging.WARNING)  # no pages of scheduler and worker start-up chatter
+    # no pages of scheduler and worker start-up chatter: the workers read dask's logging level from the
+    # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                           "dashboard_address": None, "env": worker_env(),
                                           "silence_logs": logging.WARNING})
