@@ -8,7 +8,8 @@ from pathlib import Path
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 
-#: Tasks whose simulation exists in ``envs/tasks`` today.
+#: Tasks the pipeline runs: their simulation exists in ``envs/tasks`` and their expert plan meets its target.
+#: PRL-Tweeze-v1 exists but is left out until it does (its expert lifts the cube on 2 of 30 scenes; README).
 SIMULATED_TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew")
 
 
@@ -77,7 +78,7 @@ class PipelineConfig:
             if task not in TASKS:
                 raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
             if task not in SIMULATED_TASKS:
-                raise ConfigError(f"task {task!r} has no simulation yet; simulated: {', '.join(SIMULATED_TASKS)}")
+                raise ConfigError(f"task {task!r} is not in the pipeline yet; pipeline tasks: {', '.join(SIMULATED_TASKS)}")
         for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers", "pn_epochs",
                      "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes", "ln_timesteps", "ln_envs"):
             value = getattr(self, name)

@@ -229,6 +229,44 @@ def unscrew_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
     return _union([body, neck])
 
 
+# ------------------------------------------------------------------ tweeze task
+TWEEZERS_ARM_HEIGHT = 0.012
+"""Height (m) of each tweezers arm standing on edge (its extent along the tweezers' Z, vertical at rest)."""
+TWEEZERS_ARM_THICKNESS = 0.003
+"""Thickness (m) of each arm along the closing direction."""
+TWEEZERS_BUTT_LENGTH = 0.012
+"""Length (m) of the block behind the hinge that joins the arms."""
+
+
+def tweezers_arm_angle(arm_length: float, tip_gap: float) -> float:
+    """Half opening angle (rad) of tweezers whose arms' inner faces run from the hinge to tips ``tip_gap`` apart."""
+    return float(np.arcsin(tip_gap / (2 * arm_length)))
+
+
+def tweeze_tool_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The open tweezers of ``envs/tasks/tweeze.py`` in their root link's frame: origin at the hinge, X along
+    the arms, which stand ``arm_height`` tall along Y and open symmetrically along Z, and the joining block
+    behind the hinge."""
+    length, gap = _require(params, ("arm_length", "tip_gap"))
+    height = float(params.get("arm_height", TWEEZERS_ARM_HEIGHT))
+    thick = float(params.get("arm_thickness", TWEEZERS_ARM_THICKNESS))
+    angle = tweezers_arm_angle(length, gap)
+    parts = [_translate(trimesh.creation.box(extents=[TWEEZERS_BUTT_LENGTH, height, 4 * thick]),
+                        (-TWEEZERS_BUTT_LENGTH / 2, 0.0, 0.0))]
+    for side in (1.0, -1.0):
+        arm = trimesh.creation.box(extents=[length, height, thick])
+        arm.apply_translation([length / 2, 0.0, side * thick / 2])
+        arm.apply_transform(trimesh.transformations.rotation_matrix(-side * angle, [0, 1, 0]))
+        parts.append(arm)
+    return _union(parts)
+
+
+def tweeze_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
+    """The cube of ``envs/tasks/tweeze.py`` in the task's object frame (origin at its bottom face's centre, Z up)."""
+    (size,) = _require(params, ("cube_size",))
+    return _translate(trimesh.creation.box(extents=[size] * 3), (0.0, 0.0, size / 2))
+
+
 MeshBuilder = Callable[[Mapping[str, float]], trimesh.Trimesh]
 
 #: Per task: (tool mesh builder, object mesh builder), each taking the env's ``scene_params``.
@@ -236,6 +274,7 @@ MESH_BUILDERS: dict[str, tuple[MeshBuilder, MeshBuilder]] = {
     "hammer": (hammer_tool_mesh, hammer_object_mesh),
     "sweep": (sweep_tool_mesh, sweep_object_mesh),
     "unscrew": (unscrew_tool_mesh, unscrew_object_mesh),
+    "tweeze": (tweeze_tool_mesh, tweeze_object_mesh),
 }
 
 
@@ -365,19 +404,12 @@ def _random_nail(rng: np.random.Generator) -> trimesh.Trimesh:
 
 
 def _random_tweezers(rng: np.random.Generator) -> trimesh.Trimesh:
-    """Two thin prongs along +X joined at x = 0 by a block, opening towards the tips (a V in the XY plane)."""
+    """The tweeze task's tweezers (``tweeze_tool_mesh``) with arms 2 .. 20 cm long, 2 .. 6 mm thick and
+    4 .. 20 mm high, tips 2 mm .. 5 cm apart."""
     length = _log_uniform(rng, 0.02, 0.20)
-    width = _log_uniform(rng, 0.002, 0.012)
-    thickness = _log_uniform(rng, 0.002, 0.006)
-    gap = _log_uniform(rng, 0.002, 0.04)
-    half_angle = np.arctan2(gap / 2 + width / 2, length)
-    parts = [trimesh.creation.box(extents=[2 * width, 2 * width + 2 * np.tan(half_angle) * width, thickness])]
-    for sign in (1.0, -1.0):
-        prong = trimesh.creation.box(extents=[length, width, thickness * 0.9])
-        prong.apply_translation([length / 2, 0.0, 0.0])
-        prong.apply_transform(trimesh.transformations.rotation_matrix(sign * half_angle, [0, 0, 1]))
-        parts.append(prong)
-    return _union(parts)
+    return tweeze_tool_mesh({"arm_length": length, "tip_gap": min(_log_uniform(rng, 0.002, 0.05), length),
+                             "arm_thickness": _log_uniform(rng, 0.002, 0.006),
+                             "arm_height": _log_uniform(rng, 0.004, 0.020)})
 
 
 def _random_broom(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -419,7 +451,8 @@ def random_shape(category: str, rng: np.random.Generator) -> trimesh.Trimesh:
     * ``hammer`` / ``nail``: the env's builders with the nominal sizes scaled, half the time by one
       factor in the env's ``SIZE_SCALE_RANGE`` (+-15 %), else by independent factors per parameter in
       ``WIDE_SCALE_RANGE`` (0.6 .. 1.4, unseen proportions; hammers then reach ~36 cm);
-    * ``tweezers``: two prongs 2 .. 20 cm long, 2 .. 12 mm wide, 2 .. 6 mm thick, tips 2 mm .. 4 cm apart;
+    * ``tweezers``: the tweeze task's tweezers, arms 2 .. 20 cm long, 2 .. 6 mm thick, 4 .. 20 mm high,
+      tips 2 mm .. 5 cm apart;
     * ``broom``: the sweep task's broom, its head scaled like ``hammer``, its handle by 0.7 .. 1.2;
     * ``debris``: 3 .. 10 cubes of 1 .. 3 cm in a patch (the sweep task's object);
     * ``bottle``: the unscrew task's bottle (body and neck), body radius 1.5 .. 5 cm, height 2 .. 7 cm.

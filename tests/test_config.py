@@ -17,7 +17,7 @@ def test_quick_and_paper_profiles() -> None:
 
 @pytest.mark.parametrize(("overrides", "match"), [
     ({"tasks": ("hamer",)}, "unknown task 'hamer'"),
-    ({"tasks": ("tweeze",)}, "task 'tweeze' has no simulation yet"),
+    ({"tasks": ("tweeze",)}, "task 'tweeze' is not in the pipeline yet"),
     ({"tasks": ()}, "tasks is empty"),
     ({"eval_scenes": 0}, "eval_scenes must be a positive integer, got 0"),
     ({"episode_frames": -5}, "episode_frames must be a positive integer, got -5"),

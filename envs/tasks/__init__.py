@@ -9,13 +9,14 @@ from typing import Any
 
 import gymnasium as gym
 
-from envs.tasks import grasp_probe, hammer, sweep, unscrew  # noqa: F401  (registers PRL-GraspProbe-v1 and the PRL tasks)
+from envs.tasks import grasp_probe, hammer, sweep, tweeze, unscrew  # noqa: F401  (registers PRL-GraspProbe-v1 and the PRL tasks)
 from envs.tasks.base import PRLTaskEnv, physics_sim_config
 
 TASK_ENV_IDS: dict[str, str] = {
     "hammer": "PRL-Hammer-v1",
     "sweep": "PRL-Sweep-v1",
     "unscrew": "PRL-Unscrew-v1",
+    "tweeze": "PRL-Tweeze-v1",
 }
 """Short task name -> registered ManiSkill environment id."""
 
