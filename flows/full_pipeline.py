@@ -4,7 +4,7 @@ The DAG, one module per stage under ``flows/``, each a Prefect task or subflow t
 results and logging its own MLflow child run under the run's parent run::
 
     assets -> trials-<task> -> synthesis -> labels -> export -> features -> rn-train -> rn-eval -> ln
-           -> pictures-<task>                              pointnet ---^
+    assets -> pictures-<task>      assets -> pointnet -> features      synthesis -> export      features -> ln
 
 assets (hand model + PLB) -> plan trials per task (expert, prior-sampled and uniformly random plans
 executed on domain-randomised scenes) and stage pictures of the expert plan -> scene synthesis (Dask)

@@ -234,6 +234,21 @@ class PRLTaskEnv(BaseEnv):
         """The target object's frame in the world, (position (3,), R (3, 3)) with Z up."""
         raise NotImplementedError
 
+    def hand_links_touching(self, body: Any, shape: Any = None) -> list[str]:
+        """Names of the hand links pressing on the PhysX ``body`` now (on its collision ``shape`` only, if given):
+        simulated contacts with a non-zero impulse. Empty without an agent."""
+        if self.agent is None:
+            return []
+        hand = {link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
+        names = set()
+        for contact in self.scene.px.get_contacts():
+            for k in (0, 1):
+                if contact.bodies[k] is body and (shape is None or contact.shapes[k] is shape):
+                    name = hand.get(contact.bodies[1 - k].entity)
+                    if name and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
+                        names.add(name)
+        return sorted(names)
+
     def tool_is_broken(self) -> torch.Tensor:
         """(1,) bool: the tool's simulated pose is NaN/inf (a PhysX blow-up) or it fell below the table top."""
         raw = self.tool.pose.raw_pose

@@ -293,18 +293,7 @@ class PRLTweezeEnv(PRLTaskEnv):
 
     def hand_touches_cube(self) -> list[str]:
         """Names of the hand links in contact with the cube now (simulated contacts with a non-zero impulse)."""
-        if self.agent is None:
-            return []
-        cube_body = self.cube._bodies[0]
-        hand = {link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
-        names = set()
-        for contact in self.scene.px.get_contacts():
-            for k in (0, 1):
-                if contact.bodies[k] is cube_body:
-                    name = hand.get(contact.bodies[1 - k].entity)
-                    if name and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                        names.add(name)
-        return sorted(names)
+        return self.hand_links_touching(self.cube._bodies[0])
 
     def tool_is_broken(self) -> torch.Tensor:
         broken = super().tool_is_broken()

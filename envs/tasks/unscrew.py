@@ -188,19 +188,8 @@ class PRLUnscrewEnv(PRLTaskEnv):
     def gripping_links(self) -> list[str]:
         """Names of the hand links other than the palm that press on the cap's knurled side now (simulated
         contacts with a non-zero impulse; the smooth top disc does not count)."""
-        if self.agent is None:
-            return []
         cap_body = self.cap._objs[0]
-        side = cap_body.collision_shapes[0]
-        hand = {link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
-        names = set()
-        for contact in self.scene.px.get_contacts():
-            for k in (0, 1):
-                if contact.bodies[k] is cap_body and contact.shapes[k] is side:
-                    name = hand.get(contact.bodies[1 - k].entity)
-                    if name and name != "palm" and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                        names.add(name)
-        return sorted(names)
+        return [name for name in self.hand_links_touching(cap_body, cap_body.collision_shapes[0]) if name != "palm"]
 
     def evaluate(self) -> dict[str, torch.Tensor]:
         turn = self.cap_turn_deg()
