@@ -2,9 +2,9 @@
 
 Points = tasks x variants x demonstration steps x seeds (``flows.ln.LNPoint``: physics-guided A2C for each
 K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
-point one MLflow child run under one sweep parent run. The sweep is resumable: the parent run is found
-again by a key over the sweep's settings, and points that already have a finished child run and a
-summary are not re-run. At the end Fig 8 is drawn from the points' runs: success rate against
+point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
+run is found again by a key over the sweep's settings (not its list of points), and points that already
+have a finished child run and a summary are not re-run, so adding seeds or variants runs only the new ones. At the end Fig 8 is drawn from the points' runs: success rate against
 timesteps and against physics frames, mean over seeds with a min-max band (top: physics-guided vs
 joint control; bottom: demonstration steps).
 """
@@ -99,7 +99,7 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
     settings = {"dataset_root": str(root.resolve()), "pointnet": str(Path(pointnet_path).resolve()),
                 "timesteps": timesteps, "eval_scenes": eval_scenes, "eval_seed": eval_seed,
                 "pretrain_epochs": pretrain_epochs, "n_points": n_points, "steps_per_update": steps_per_update}
-    key = _sweep_key({**settings, "points": [p.name for p in points]})
+    key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or variants resumes
     setup = LNSetup(timesteps=timesteps, demo_dir=out / "demos", pointnet_path=Path(pointnet_path), out_dir=out / "points",
                     eval_seeds=tuple(eval_scene_seeds(eval_seed, eval_scenes)), n_points=n_points, n_envs=1,
                     steps_per_update=steps_per_update, pretrain_epochs=pretrain_epochs, progress=False)

@@ -320,3 +320,8 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
     assert again == first
     runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
     assert len(runs) == 2
+    grown = ablation(str(tiny_dataset), str(pointnet_path), **{**kwargs, "variants": ["physics"], "seeds": [0, 1]})
+    assert sorted(grown) == ["ln-hammer-physics-k2-seed0", "ln-hammer-physics-k2-seed1"]
+    assert grown["ln-hammer-physics-k2-seed0"] == first["ln-hammer-physics-k2-seed0"]  # reused, not re-run
+    runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
+    assert len(runs) == 3 and len({r.data.tags["mlflow.parentRunId"] for r in runs}) == 1
