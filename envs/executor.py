@@ -29,8 +29,8 @@ The transport/place targets are planned at the end of the lift from the *measure
 in the palm (what a robot with object tracking would do); the place pose is chosen so that
 the motion's displacement would bring T_fv's leading face onto the object. Arm and wrist
 targets come from ``envs/ik.py``. Targets are ramped between waypoints with a minimum-jerk
-profile and written to the PhysX joint drives only when they change; the scene is stepped with
-``scene.step()`` directly.
+profile and written to the PhysX joint drives only when they change; the scene is stepped frame by
+frame with ``env.step_physics()`` (``scene.step()`` and the task's per-frame watch).
 
 Physical honesty: the executor never sets a pose, velocity or joint state of the tool or the
 object, adds no joint or constraint, and the outcome is the task's ``evaluate()`` of the
@@ -477,7 +477,7 @@ def _observe(env: Any, n_frames: int) -> np.ndarray:
     picks = set(np.round(np.linspace(0, n_frames - 1, X_MANIP_SAMPLES)).astype(int).tolist())
     samples: dict[str, list[np.ndarray]] = {name: [] for name, _ in X_MANIP_LAYOUT}
     for frame in range(n_frames):
-        env.scene.step()
+        env.step_physics()
         if frame in picks:
             samples["qpos"].append(np.asarray(art.get_qpos(), dtype=np.float64)[perm])
             samples["qvel"].append(np.asarray(art.get_qvel(), dtype=np.float64)[perm])
@@ -675,7 +675,7 @@ class _Episode:
         plan_targets = np.empty((0, N_JOINTS))
         moving: np.ndarray = np.zeros(0, np.int64)
         stage_start = 0
-        scene_step = self.env.scene.step
+        scene_step = self.env.step_physics
         record_every = cfg.record_every
         perf_counter = time.perf_counter
         physics_time = 0.0

@@ -4,7 +4,9 @@ Points = tasks x variants x demonstration steps x seeds (``flows.ln.LNPoint``: p
 K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
 point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
 run is found again by a key over the sweep's settings (not its list of points), and points that already
-have a finished child run and a summary are not re-run, so adding seeds or variants runs only the new ones. At the end Fig 8 is drawn from the points' runs: success rate against
+have a finished child run and a summary are not re-run, so adding seeds or variants runs only the new ones.
+``--reevaluate`` executes the finished points' saved final policies again on the evaluation scenes (after a
+task's success criterion changed) and replaces their ``eval`` without retraining. At the end Fig 8 is drawn from the points' runs: success rate against
 timesteps and against physics frames, mean over seeds with a min-max band (top: physics-guided vs
 joint control; bottom: demonstration steps).
 """
@@ -20,7 +22,7 @@ from typing import Any
 
 from prefect import flow
 
-from flows.ln import VARIANTS, LNPoint, LNSetup, ln_point, write_demonstrations
+from flows.ln import VARIANTS, LNPoint, LNSetup, ln_point, ln_reevaluate, write_demonstrations
 from prl import tracking
 
 PAPER_DEMO_STEPS: tuple[int, ...] = (0, 320, 640, 1280, 2560)
@@ -73,7 +75,7 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
              variants: list[str] | None = None, demo_steps: list[int] | None = None, seeds: list[int] | None = None,
              timesteps: int = 3200, eval_scenes: int = 50, eval_seed: int = 0, workers: int = 2,
              dask_address: str | None = None, output_dir: str = "outputs/ablation", n_points: int = 512,
-             pretrain_epochs: int = 10, steps_per_update: int = 64) -> dict[str, Any]:
+             pretrain_epochs: int = 10, steps_per_update: int = 64, reevaluate: bool = False) -> dict[str, Any]:
     """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into ``output_dir``."""
     import mlflow
 
@@ -114,6 +116,9 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
         todo = [p for p in points if p.name not in summaries]
         print(f"sweep {key}: {len(points)} points, {len(summaries)} already finished, {len(todo)} to run "
               f"(MLflow parent {parent.info.run_id})")
+        if reevaluate and summaries:
+            print(f"re-evaluating {len(summaries)} finished points' final policies on {eval_scenes} scenes")
+            summaries.update(_reevaluate(list(summaries.values()), setup, workers, dask_address, make_task_runner))
         if todo:
             summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner))
         figs = draw_fig8(summaries, out)
@@ -134,6 +139,15 @@ def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, 
         return [f.result() for f in futures]
 
     return {s["name"]: s for s in _points(todo)}
+
+
+def _reevaluate(finished: list[dict[str, Any]], setup: LNSetup, workers: int, dask_address: str | None,
+                make_task_runner: Any) -> dict[str, Any]:
+    @flow(name="prl-ln-reevaluate", task_runner=make_task_runner(workers, dask_address))
+    def _points(finished: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [f.result() for f in [ln_reevaluate.submit(s, setup) for s in finished]]
+
+    return {s["name"]: s for s in _points(finished)}
 
 
 def _watch(parent_id: str, names: set[str], total: int, futures: list, period_s: float = 10.0) -> None:
@@ -191,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--dask-address", default=None)
     parser.add_argument("--output-dir", default="outputs/ablation")
+    parser.add_argument("--reevaluate", action="store_true",
+                        help="evaluate the finished points' final policies again (after a task's success criterion changed)")
     args = parser.parse_args(argv)
 
     def ints(text: str, what: str) -> list[int]:
@@ -207,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     ablation(args.dataset, args.pointnet, args.repo_id, args.tasks.split(","), args.variants.split(","),
              ints(args.demo_steps, "demo-steps"), ints(args.seeds, "seeds"), args.timesteps, args.eval_scenes,
-             workers=args.workers, dask_address=args.dask_address, output_dir=args.output_dir)
+             workers=args.workers, dask_address=args.dask_address, output_dir=args.output_dir, reevaluate=args.reevaluate)
     return 0
 
 

@@ -132,7 +132,6 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     from prl.ln import LNConfig, make_ln, pretrain, save_ln, train_ln
     from prl.plots import plot_learning_curves
     from prl.rn import feature_stats
-    from prl.stats import wilson_interval
 
     task_class(point.task)  # ValueError naming an unknown task before anything runs
     cfg = LNConfig(timesteps=setup.timesteps, n_envs=setup.n_envs, steps_per_update=setup.steps_per_update,
@@ -170,26 +169,62 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
             np.random.default_rng(0).normal(size=(16, *model.observation_space.shape)).astype(np.float32)
         if setup.register:
             mlflow.log_metric("registered_reload_action_mismatches", register_policy(model, check_x))
-        outcomes = evaluate_policy(point, model, setup)
-        k, n = sum(o.success for o in outcomes), len(outcomes)
-        lo, hi = wilson_interval(k, n) if n else (0.0, 0.0)
-        mlflow.log_metrics({"ln/eval/success_rate": k / max(n, 1), "ln/eval/ci95_low": lo, "ln/eval/ci95_high": hi,
-                            "ln/eval/mean_measure": float(np.mean([o.measure for o in outcomes])) if n else 0.0,
-                            "ln/eval/errors": sum(bool(o.error) for o in outcomes), "train_seconds": train_s,
+        evaluation = evaluate_and_log(point, model, setup)
+        mlflow.log_metrics({"train_seconds": train_s,
                             "timesteps_per_second": cfg.timesteps / train_s if train_s > 0 else 0.0})
         for x_key in ("timesteps", "frames"):
             fig = plot_learning_curves({point.variant: [rows]}, x_key, "window_success_rate",
                                        setup.out_dir / f"{point.name}-{x_key}.png", title=point.name)
             mlflow.log_artifact(str(fig), artifact_path="curves")
         summary = {"point": asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": rows,
-                   "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s,
-                   "eval": {"successes": k, "n": n, "ci95": [lo, hi],
-                            "outcomes": [{"seed": o.seed, "plan": list(o.plan), "success": o.success,
-                                          "measure": o.measure, "error": o.error} for o in outcomes]}}
-        mlflow.log_dict(summary, f"{point.name}.json")
-        path = setup.out_dir / f"{point.name}.json"
-        path.with_suffix(".tmp").write_text(json.dumps(summary))
-        path.with_suffix(".tmp").replace(path)
+                   "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s, "eval": evaluation}
+        _write_summary(summary, setup.out_dir)
+    return summary
+
+
+def _write_summary(summary: dict[str, Any], out_dir: Path) -> None:
+    """Log the point's summary to its (active) run and write it to ``out_dir/<name>.json`` atomically."""
+    import mlflow
+
+    mlflow.log_dict(summary, f"{summary['name']}.json")
+    path = out_dir / f"{summary['name']}.json"
+    path.with_suffix(".tmp").write_text(json.dumps(summary))
+    path.with_suffix(".tmp").replace(path)
+
+
+def evaluate_and_log(point: LNPoint, model: Any, setup: LNSetup) -> dict[str, Any]:
+    """``evaluate_policy``, its ``ln/eval/*`` metrics logged to the active run; returns the summary's ``eval``."""
+    import mlflow
+
+    from prl.stats import wilson_interval
+
+    outcomes = evaluate_policy(point, model, setup)
+    k, n = sum(o.success for o in outcomes), len(outcomes)
+    lo, hi = wilson_interval(k, n) if n else (0.0, 0.0)
+    mlflow.log_metrics({"ln/eval/success_rate": k / max(n, 1), "ln/eval/ci95_low": lo, "ln/eval/ci95_high": hi,
+                        "ln/eval/mean_measure": float(np.mean([o.measure for o in outcomes])) if n else 0.0,
+                        "ln/eval/errors": sum(bool(o.error) for o in outcomes)})
+    return {"successes": k, "n": n, "ci95": [lo, hi],
+            "outcomes": [{"seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure,
+                          "error": o.error} for o in outcomes]}
+
+
+def reevaluate_point(summary: dict[str, Any], setup: LNSetup) -> dict[str, Any]:
+    """Evaluate a finished point's saved final policy again under today's task code (after a change to a task's
+    success criterion), without retraining: the new ``ln/eval/*`` values are logged to the point's run, the
+    summary's ``eval`` is replaced (the one it replaces kept as ``eval_before``) and rewritten."""
+    import mlflow
+
+    from prl.ln import load_ln
+    from prl.version import code_version
+
+    point = LNPoint(**summary["point"])
+    model = load_ln(summary["checkpoint"])  # FileNotFoundError naming a missing checkpoint
+    with mlflow.start_run(run_id=summary["run_id"], nested=mlflow.active_run() is not None):
+        evaluation = evaluate_and_log(point, model, setup)
+        mlflow.set_tag("reevaluated_at_code", code_version())
+        summary = {**summary, "eval": evaluation, "eval_before": summary.get("eval_before", summary["eval"])}
+        _write_summary(summary, setup.out_dir)
     return summary
 
 
@@ -231,6 +266,13 @@ def ln_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -
     if parent_run_id is not None:
         tracking.configure("prl")
     return run_point(point, setup, parent_run_id)
+
+
+@task(name="ln-reevaluate", task_run_name="reevaluate-{summary[name]}", cache_policy=NO_CACHE)
+def ln_reevaluate(summary: dict[str, Any], setup: LNSetup) -> dict[str, Any]:
+    """Prefect task of ``reevaluate_point`` (a Dask worker runs it in the sweep, pointed at the store here)."""
+    tracking.configure("prl")
+    return reevaluate_point(summary, setup)
 
 
 @task(name="ln-stage", task_run_name="ln", cache_policy=NO_CACHE)

@@ -325,3 +325,10 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
     assert grown["ln-hammer-physics-k2-seed0"] == first["ln-hammer-physics-k2-seed0"]  # reused, not re-run
     runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
     assert len(runs) == 3 and len({r.data.tags["mlflow.parentRunId"] for r in runs}) == 1
+    again = ablation(str(tiny_dataset), str(pointnet_path), **{**kwargs, "reevaluate": True})  # no retraining
+    assert sorted(again) == sorted(first)
+    for name, s in again.items():
+        assert s["eval_before"] == first[name]["eval"] and s["eval"]["n"] == 1 and s["rows"] == first[name]["rows"]
+        assert mlflow.get_run(s["run_id"]).data.tags["reevaluated_at_code"]
+    assert len(mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''",
+                                  output_format="list")) == 3

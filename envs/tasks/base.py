@@ -234,6 +234,13 @@ class PRLTaskEnv(BaseEnv):
         """The target object's frame in the world, (position (3,), R (3, 3)) with Z up."""
         raise NotImplementedError
 
+    def step_physics(self) -> None:
+        """One physics frame as ``env.step`` takes it: ``scene.step()``, then the task's per-frame watch
+        (ManiSkill's ``_after_simulation_step``). The plan executor steps its frames with this, so a task that
+        watches every frame (the hammer: what drives the nail) sees the same frames under both controllers."""
+        self.scene.step()
+        self._after_simulation_step()
+
     def hand_links_touching(self, body: Any, shape: Any = None) -> list[str]:
         """Names of the hand links pressing on the PhysX ``body`` now (on its collision ``shape`` only, if given):
         simulated contacts with a non-zero impulse. Empty without an agent."""
