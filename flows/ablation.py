@@ -181,20 +181,36 @@ def draw_fig8(summaries: dict[str, Any], out: Path) -> list[Path]:
     by_task: dict[str, dict[str, list]] = {}
     for s in summaries.values():
         p = s["point"]
-        label = "joint control" if p["variant"] == "joint" else f"{p['variant']} K={p['demo_steps']}"
+        label = f"{p['variant']} K={p['demo_steps']}"
+        if p["variant"] == "joint":  # named by its budget: an equal-frames run is 15x to 75x longer
+            label = f"joint control, {int(s['rows'][-1]['timesteps']) if s['rows'] else 0:,} steps"
         by_task.setdefault(p["task"], {}).setdefault(label, []).append(s["rows"])
     for task_name, curves in sorted(by_task.items()):
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
             figs.append(plot_learning_curves(dict(sorted(curves.items())), x_key, "window_success_rate",
                                              out / f"fig8_{task_name}_{x_key}.png", title=f"{task_name}: LN variants",
-                                             x_label=x_label))
+                                             x_label=x_label, log_x=True))
     return figs
+
+
+def read_summaries(sweep_dirs: list[str]) -> dict[str, Any]:
+    """The point summaries (``points/*.json``) of one or more sweep output directories, told apart by name and
+    timesteps (a later directory's identical point wins). ``FileNotFoundError`` naming a directory without any."""
+    summaries: dict[str, Any] = {}
+    for d in sweep_dirs:
+        found = sorted((Path(d) / "points").glob("ln-*.json"))
+        if not found:
+            raise FileNotFoundError(f"no LN point summaries under {str(Path(d) / 'points')!r}")
+        for path in found:
+            s = json.loads(path.read_text())
+            summaries[f"{s['name']}@{int(s['rows'][-1]['timesteps']) if s['rows'] else 0}"] = s
+    return summaries
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", required=True, help="exported LeRobot dataset root (the pipeline's datasets/...)")
-    parser.add_argument("--pointnet", required=True, help="the PointNet checkpoint the RN used (models/pointnet-*.pt)")
+    parser.add_argument("--dataset", help="exported LeRobot dataset root (the pipeline's datasets/...)")
+    parser.add_argument("--pointnet", help="the PointNet checkpoint the RN used (models/pointnet-*.pt)")
     parser.add_argument("--repo-id", default=None)
     parser.add_argument("--tasks", default="hammer")
     parser.add_argument("--variants", default=",".join(VARIANTS))
@@ -205,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--dask-address", default=None)
     parser.add_argument("--output-dir", default="outputs/ablation")
+    parser.add_argument("--draw-from", default=None, metavar="DIR,DIR",
+                        help="only redraw Fig 8 into --output-dir from these sweeps' output directories (no run)")
     parser.add_argument("--reevaluate", action="store_true",
                         help="evaluate the finished points' final policies again (after a task's success criterion changed)")
     args = parser.parse_args(argv)
@@ -215,6 +233,16 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError:
             parser.error(f"--{what} must be comma-separated integers, got {text!r}")
 
+    if args.draw_from:
+        try:
+            figs = draw_fig8(read_summaries(args.draw_from.split(",")), Path(args.output_dir))
+        except FileNotFoundError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print("\n".join(str(f) for f in figs))
+        return 0
+    if not args.dataset or not args.pointnet:
+        parser.error("--dataset and --pointnet are required (unless --draw-from)")
     try:
         sweep_points(args.tasks.split(","), args.variants.split(","), ints(args.demo_steps, "demo-steps"),
                      ints(args.seeds, "seeds"))

@@ -103,11 +103,11 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
 
 
 def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str, y_key: str,
-                         out: Path, title: str = "", x_label: str | None = None) -> Path:
+                         out: Path, title: str = "", x_label: str | None = None, log_x: bool = False) -> Path:
     """The paper's Fig 8 redrawn: for each variant, ``y_key`` against ``x_key`` as the mean over seeds with a
     band from the lowest to the highest seed. ``curves[variant]`` is one list of rows per seed (the LN's
     per-update rows, first point at the end of the first update); seeds are aligned on their common ``x_key``
-    range by linear interpolation."""
+    range by linear interpolation. ``log_x`` puts ``x_key`` on a log scale (budgets that differ by 100x)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,6 +128,8 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
                         marker="o" if len(runs[0]) < 3 else None)
         if len(runs) > 1:
             ax.fill_between(grid, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
+    if log_x:
+        ax.set_xscale("log")
     ax.set_xlabel(x_label or x_key)
     ax.set_ylabel(y_key.replace("_", " "))
     ax.set_ylim(-0.03, 1.03)

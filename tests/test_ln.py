@@ -162,6 +162,28 @@ def test_ln_points_and_sweeps_name_bad_input() -> None:
     assert len(points) == 6 + 3 + 3  # physics K=0 and K=1280, bc K=1280, joint once; 3 seeds each
 
 
+def test_fig8_redrawn_from_sweep_directories(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    import json
+
+    from flows.ablation import main, read_summaries
+
+    assert main(["--draw-from", str(tmp_path / "nowhere"), "--output-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "no LN point summaries under" in err and "nowhere" in err
+    with pytest.raises(SystemExit):
+        main(["--tasks", "hammer"])  # a sweep needs --dataset and --pointnet
+    for d, steps in (("short", 2), ("long", 3)):  # the same joint point at two budgets, in two sweeps
+        rows = [{"timesteps": float(t), "frames": 10.0 * t, "window_success_rate": 0.1 * t} for t in range(1, steps + 1)]
+        (tmp_path / d / "points").mkdir(parents=True)
+        (tmp_path / d / "points" / "ln-hammer-joint-k0-seed0.json").write_text(json.dumps(
+            {"name": "ln-hammer-joint-k0-seed0", "rows": rows,
+             "point": {"task": "hammer", "variant": "joint", "demo_steps": 0, "seed": 0}}))
+    both = read_summaries([str(tmp_path / "short"), str(tmp_path / "long")])
+    assert sorted(both) == ["ln-hammer-joint-k0-seed0@2", "ln-hammer-joint-k0-seed0@3"]
+    assert main(["--draw-from", f"{tmp_path / 'short'},{tmp_path / 'long'}", "--output-dir", str(tmp_path / "fig")]) == 0
+    assert (tmp_path / "fig" / "fig8_hammer_frames.png").stat().st_size > 10_000
+
+
 def test_unknown_task_is_named(tmp_path: Path) -> None:
     from envs.joint_env import JointControlEnv
     from envs.plan_env import PlanEnv
