@@ -6,9 +6,10 @@ point one MLflow child run under one sweep parent run. The sweep is resumable an
 run is found again by a key over the sweep's settings (not its list of points), and points that already
 have a finished child run and a summary are not re-run, so adding seeds or variants runs only the new ones.
 ``--reevaluate`` executes the finished points' saved final policies again on the evaluation scenes (after a
-task's success criterion changed) and replaces their ``eval`` without retraining. At the end Fig 8 is drawn from the points' runs: success rate against
-timesteps and against physics frames, mean over seeds with a min-max band (top: physics-guided vs
-joint control; bottom: demonstration steps).
+task's success criterion changed) and replaces their ``eval`` without retraining. At the end Fig 8 is drawn
+from the points' runs: success rate against timesteps and against physics frames, mean over seeds with a
+min-max band (top: physics-guided vs joint control; bottom: demonstration steps); ``--draw-from`` redraws it
+from the summaries of one or more sweeps' output directories.
 """
 
 from __future__ import annotations

@@ -319,9 +319,9 @@ class PRLHammerEnv(PRLTaskEnv):
     def _hammer_touches_nail(self) -> bool:
         hammer, head = self.tool._bodies[0], self._nail_head_px
         for contact in self.scene.px.get_contacts():
-            if {id(contact.bodies[0]), id(contact.bodies[1])} == {id(hammer), id(head)}:
-                if any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                    return True
+            pair = {id(contact.bodies[0]), id(contact.bodies[1])}
+            if pair == {id(hammer), id(head)} and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
+                return True
         return False
 
     # ------------------------------------------------------------------ executor API
