@@ -241,20 +241,27 @@ class PRLTaskEnv(BaseEnv):
         self.scene.step()
         self._after_simulation_step()
 
-    def hand_links_touching(self, body: Any, shape: Any = None) -> list[str]:
-        """Names of the hand links pressing on the PhysX ``body`` now (on its collision ``shape`` only, if given):
-        simulated contacts with a non-zero impulse. Empty without an agent."""
+    def bodies_pressing(self, body: Any, shape: Any = None) -> list[Any]:
+        """The PhysX bodies pressing on the PhysX ``body`` now (on its collision ``shape`` only, if given):
+        simulated contacts with a non-zero impulse, one entry per contact."""
+        out = []
+        for contact in self.scene.px.get_contacts():
+            for k in (0, 1):
+                if contact.bodies[k] is body and (shape is None or contact.shapes[k] is shape) \
+                        and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
+                    out.append(contact.bodies[1 - k])
+        return out
+
+    def hand_links_among(self, bodies: list[Any]) -> list[str]:
+        """Names of the hand links among the PhysX ``bodies``. Empty without an agent."""
         if self.agent is None:
             return []
         hand = {link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
-        names = set()
-        for contact in self.scene.px.get_contacts():
-            for k in (0, 1):
-                if contact.bodies[k] is body and (shape is None or contact.shapes[k] is shape):
-                    name = hand.get(contact.bodies[1 - k].entity)
-                    if name and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                        names.add(name)
-        return sorted(names)
+        return sorted({hand[b.entity] for b in bodies if b.entity in hand})
+
+    def hand_links_touching(self, body: Any, shape: Any = None) -> list[str]:
+        """Names of the hand links pressing on the PhysX ``body`` now (``bodies_pressing``). Empty without an agent."""
+        return self.hand_links_among(self.bodies_pressing(body, shape)) if self.agent is not None else []
 
     def tool_is_broken(self) -> torch.Tensor:
         """(1,) bool: the tool's simulated pose is NaN/inf (a PhysX blow-up) or it fell below the table top."""

@@ -308,21 +308,14 @@ class PRLHammerEnv(PRLTaskEnv):
         docstring). Contacts are read only in frames where the nail moves."""
         q = float(self._nail_px.get_qpos()[0])
         if abs(q - self._nail_q) > NAIL_MOVING_M:
-            if self.hand_links_touching(self._nail_head_px):
+            pressing = self.bodies_pressing(self._nail_head_px)  # one pass over the frame's contacts
+            if self.hand_links_among(pressing):
                 self._nail_driver = "hand"
-            elif self._hammer_touches_nail():
+            elif any(b is self.tool._bodies[0] for b in pressing):
                 self._nail_driver = "hammer"
             if self._nail_driver == "hammer":
                 self._hammer_drive += q - self._nail_q
         self._nail_q = q
-
-    def _hammer_touches_nail(self) -> bool:
-        hammer, head = self.tool._bodies[0], self._nail_head_px
-        for contact in self.scene.px.get_contacts():
-            pair = {id(contact.bodies[0]), id(contact.bodies[1])}
-            if pair == {id(hammer), id(head)} and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                return True
-        return False
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:
