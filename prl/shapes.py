@@ -236,6 +236,11 @@ TWEEZERS_ARM_THICKNESS = 0.003
 """Thickness (m) of each arm along the closing direction."""
 TWEEZERS_BUTT_LENGTH = 0.012
 """Length (m) of the block behind the hinge that joins the arms."""
+TWEEZERS_LINK_IN_FRAME = np.diag([-1.0, 1.0, -1.0])
+"""The tweezers' root link frame in their own frame (origin at the hinge, X along the arms towards the tips, Y
+along the height, Z across from arm a to arm b): half a turn about Y. The link frame is the tool frame the
+executor grasps in (palm frame = T_gv frame turned by a0, a1), so its X, the palm's thumb side, points towards
+the butt, and the palm's little-finger side and the extended fingers lie towards the tips but clear of them."""
 
 
 def tweezers_arm_angle(arm_length: float, tip_gap: float) -> float:
@@ -244,9 +249,9 @@ def tweezers_arm_angle(arm_length: float, tip_gap: float) -> float:
 
 
 def tweeze_tool_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
-    """The open tweezers of ``envs/tasks/tweeze.py`` in their root link's frame: origin at the hinge, X along
-    the arms, which stand ``arm_height`` tall along Y and open symmetrically along Z, and the joining block
-    behind the hinge."""
+    """The open tweezers of ``envs/tasks/tweeze.py`` in their root link's frame (``TWEEZERS_LINK_IN_FRAME``):
+    origin at the hinge, the arms along -X, standing ``arm_height`` tall along Y and opening symmetrically
+    along Z, and the joining block behind the hinge (+X)."""
     length, gap = _require(params, ("arm_length", "tip_gap"))
     height = float(params.get("arm_height", TWEEZERS_ARM_HEIGHT))
     thick = float(params.get("arm_thickness", TWEEZERS_ARM_THICKNESS))
@@ -258,7 +263,11 @@ def tweeze_tool_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
         arm.apply_translation([length / 2, 0.0, side * thick / 2])
         arm.apply_transform(trimesh.transformations.rotation_matrix(-side * angle, [0, 1, 0]))
         parts.append(arm)
-    return _union(parts)
+    mesh = _union(parts)
+    to_link = np.eye(4)
+    to_link[:3, :3] = TWEEZERS_LINK_IN_FRAME.T
+    mesh.apply_transform(to_link)
+    return mesh
 
 
 def tweeze_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:

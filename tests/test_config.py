@@ -12,12 +12,11 @@ from prl.config import ConfigError, make_config
 def test_quick_and_paper_profiles() -> None:
     assert make_config().eval_scenes == 8
     cfg = make_config("paper", seed=3)
-    assert (cfg.eval_scenes, cfg.seed, cfg.tasks) == (50, 3, ("hammer", "sweep", "unscrew"))  # every simulated task
+    assert (cfg.eval_scenes, cfg.seed, cfg.tasks) == (50, 3, ("hammer", "sweep", "unscrew", "tweeze"))  # every task
 
 
 @pytest.mark.parametrize(("overrides", "match"), [
     ({"tasks": ("hamer",)}, "unknown task 'hamer'"),
-    ({"tasks": ("tweeze",)}, "task 'tweeze' is not in the pipeline yet"),
     ({"tasks": ()}, "tasks is empty"),
     ({"eval_scenes": 0}, "eval_scenes must be a positive integer, got 0"),
     ({"episode_frames": -5}, "episode_frames must be a positive integer, got -5"),

@@ -1,4 +1,4 @@
-"""PRL-Tweeze-v1 (work in progress, not in the pipeline yet): the hinge spring holds the tweezers open and
+"""PRL-Tweeze-v1: the hinge spring holds the tweezers open and
 reopens them, the same seed builds the same scene, and physics decides: a pinch that shuts the tips carries the
 cube up, fingers that do not close never lift it, and a cube the hand touches does not count."""
 
@@ -15,19 +15,20 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 import prl.shapes as S
 
-EXPERT = (0, 3, 4, 2, 6, 0)
+EXPERT = (2, 1, 4, 2, 6, 0)
 
 
 def test_tweezers_and_cube_meshes_match_hand_computed_bounds() -> None:
     tweezers, cube = S.scene_meshes("tweeze", {"arm_length": 0.16, "tip_gap": 0.04, "cube_size": 0.02})
-    # arms 16 cm along X from the hinge, opening to 4 cm between the inner faces (+ 3 mm each outside) at the
-    # tips; 1.2 cm tall; the 1.2 cm butt block behind the hinge
+    # in the root link's frame (half a turn about Y from the tweezers' own): arms 16 cm along -X from the hinge,
+    # opening to 4 cm between the inner faces (+ 3 mm each outside) at the tips; 1.2 cm tall; the 1.2 cm butt
+    # block behind the hinge, along +X
     half_angle = np.arcsin(0.04 / 0.32)
     z_max = 0.16 * np.sin(half_angle) + 0.003 * np.cos(half_angle)
     np.testing.assert_allclose(tweezers.bounds[:, 1], [-0.006, 0.006], atol=1e-6)
     np.testing.assert_allclose(tweezers.bounds[:, 2], [-z_max, z_max], atol=1e-4)
-    assert tweezers.bounds[0, 0] == pytest.approx(-0.012, abs=1e-6)
-    assert tweezers.bounds[1, 0] == pytest.approx(0.16 * np.cos(half_angle), abs=1e-6)  # the tips' inner corners
+    assert tweezers.bounds[1, 0] == pytest.approx(0.012, abs=1e-6)
+    assert tweezers.bounds[0, 0] == pytest.approx(-0.16 * np.cos(half_angle), abs=1e-6)  # the tips' inner corners
     np.testing.assert_allclose(cube.bounds, [[-0.01, -0.01, 0.0], [0.01, 0.01, 0.02]], atol=1e-9)
 
 
@@ -62,8 +63,8 @@ def test_the_spring_reopens_the_tweezers_when_released(env) -> None:
     for _ in range(250):  # pinch the two tips together with 1 N each for 1 s (opposite forces: no net push)
         for body, side in ((env.arm_b._bodies[0], 1.0), (env.tool._bodies[0], -1.0)):
             pose = body.get_entity_pose()
-            rotation = pose.to_transformation_matrix()[:3, :3]
-            across = env.tool.pose.to_transformation_matrix()[0, :3, 2].numpy()  # the tweezers' Z (a to b)
+            rotation = pose.to_transformation_matrix()[:3, :3] @ S.TWEEZERS_LINK_IN_FRAME.T  # the tweezers' frame
+            across = rotation[:, 2]  # the tweezers' Z (from arm a to arm b)
             tip = np.asarray(pose.p) + rotation @ np.array([env.scene_params["arm_length"] * 0.9, 0.0, 0.0])
             body.add_force_at_point(-side * 1.0 * across, tip)
         env.scene.step()
@@ -80,13 +81,15 @@ def test_a_pinch_lifts_the_cube_by_the_tips_and_open_fingers_never_do(env, monke
     from envs import executor as ex_mod
 
     executor = ex_mod.PlanExecutor(env)
-    result = executor.run(EXPERT, seed=1)  # one of the scenes the expert wins (README: about 1 in 5)
+    result = executor.run(EXPERT, seed=1)
     assert result.success and result.outcome["cube_lift_cm"] > 10.0
     assert result.outcome["between_tips"] and not result.outcome["hand_touches_cube"]
     assert env.tweezers_opening() > 0.05  # held shut on the cube by the fingers
-    # the same plan on scene 0 lifts the cube as high, but the thumb touches it: not a success
-    result = executor.run(EXPERT, seed=0)
+    # without the twist, the same pinch lifts the cube as high, but on the way up the palm's little-finger side
+    # brushes it (and lets go of it by the end): not a success
+    result = executor.run((0, 3, 4, 2, 6, 0), seed=0)
     assert result.outcome["cube_lift_cm"] > 10.0 and result.outcome["hand_touches_cube"] and not result.success
+    assert env.hand_touches_cube() == [] and env.hand_touched_cube() == ["lf_metacarpal"]
     # fingers that keep their open posture through the grasp never lift the cube
     pinch = ex_mod.GRASP_POSTURES["palmar_pinch"]
     monkeypatch.setitem(ex_mod.GRASP_POSTURES, "palmar_pinch", replace(pinch, closed=pinch.open.copy()))

@@ -15,7 +15,8 @@ from sapien import physx
 from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.geometry import rot_y, rot_z
-from prl.shapes import TWEEZERS_ARM_HEIGHT, TWEEZERS_ARM_THICKNESS, TWEEZERS_BUTT_LENGTH, tweezers_arm_angle
+from prl.shapes import (TWEEZERS_ARM_HEIGHT, TWEEZERS_ARM_THICKNESS, TWEEZERS_BUTT_LENGTH, TWEEZERS_LINK_IN_FRAME,
+                        tweezers_arm_angle)
 
 # --- randomised geometry and physics (metres, kilograms, newtons) --------------------------------
 ARM_LENGTH_RANGE = (0.15, 0.17)
@@ -27,7 +28,7 @@ SPRING_STIFFNESS_RANGE = (1.0, 2.0)
 0.2-0.5 N m back against the fingers, which press with up to 1.5-2 N m per joint (``envs/agents/prl_hand.py``)."""
 SPRING_DAMPING = 1.0
 """Hinge damping, N m s/rad. Undamped, a saturated pinch swung the 10 g arm shut at ~4 rad/s and the tip struck
-the cube off its post; damped, the tips close at ~1 rad/s and the released spring reopens them in ~1 s."""
+the cube away; damped, the tips close at ~1 rad/s and the released spring reopens them in ~1 s."""
 TWEEZERS_MASS = 0.02
 TWEEZERS_FRICTION_RANGE = (0.8, 1.2)
 CUBE_SIZE_RANGE = (0.020, 0.025)
@@ -42,24 +43,39 @@ CUBE_OFFSET_RANGE = 0.003
 """The cube lies between the open tips, +- this far along and across the arms from the nominal spot."""
 CUBE_INSIDE = 0.008
 """The cube's far face lies this far inside the tips (m)."""
-CUBE_TO_B = 0.004
-"""Nominal clearance (m) between the cube and arm b's tip: the cube lies nearer arm b, since a pinch that
-reaches arm a first shoves the free tweezers towards b's side before the other finger meets b."""
+CUBE_SIDE = -0.6
+"""Where the cube lies across the gap between the arms: -1 against arm a, +1 against arm b. Arm a (with the
+butt) stands in the cradle and does not move, so the pinch swings arm b onto the cube and pushes it the short
+way left to arm a; near arm b, the longer push turned the cube and the converging tips squeezed it out past
+their ends (expert 21/30 at +0.4, 29/30 at -0.6, scenes 0-29)."""
 REST_HEIGHT = 0.09
 """Height (m) of the arms' centre line at rest: the tweezers lie on a rack, as the hammer does, with room under
 their middle for the fingers (the palmar pinch takes a thin rod at this height, ``envs/tasks/grasp_probe.py``)."""
 GV_AT = (0.4, 0.6)
 """T_gv: the arms between these fractions of their length from the hinge (the palm's anchor goes over its
-centre; the fingers pinch the arms nearer the butt)."""
+centre)."""
 SUPPORT_AT = (0.55, 0.65)
-"""The rack's second block carries the arms between these fractions of their length (clear of T_gv and T_fv)."""
-POST_FRACTION = 0.6
-"""The cube stands on a post this fraction of its edge wide, its top level with the arms' bottom edges, so the
-closing tips meet the cube and not the post."""
+"""The rack's middle block carries the arms between these fractions of their length (clear of T_gv and T_fv)."""
+CRADLE_REACH = 0.02
+"""The cradle's side walls run from behind the butt to this far along the arms from the hinge (m)."""
+CRADLE_CLEARANCE = 0.0005
+"""Play (m) between the butt and the cradle's walls."""
+CRADLE_WALL = 0.006
+"""Thickness (m) of the cradle's walls."""
+CRADLE_HEIGHT = 0.010
+"""Height (m) of the cradle's walls above the rack (the arms are 1.2 cm tall: the fingers reach over them)."""
+PLATFORM_FROM = 0.8
+"""The tips' rest, a block as high as the rack that also carries the cube, starts this fraction of the arms'
+length from the hinge and reaches 2 cm past the tips."""
 SUCCESS_LIFT_CM = 10.0
 """Success: the cube's lowest point more than this far above where it rested (paper: l > 10 cm)."""
 POST_LIFT = 0.15
 """How far the hand rises after the motion (``post_lift``), metres."""
+
+
+def _in_link(center: np.ndarray, rotation: np.ndarray) -> sapien.Pose:
+    """A pose given in the tweezers' frame (X towards the tips), expressed in their root link's frame."""
+    return pose_from_matrix(TWEEZERS_LINK_IN_FRAME.T @ center, TWEEZERS_LINK_IN_FRAME.T @ rotation)
 
 
 def _box_corners(center: np.ndarray, half: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -74,15 +90,17 @@ class PRLTweezeEnv(PRLTaskEnv):
     The 30-DoF hand squeezes a pair of tweezers shut on a small cube and lifts it. The tweezers are a
     free-floating articulation (no fixed root): two thin arms (1.2 cm tall, 3 mm thick) joined at the butt by a
     revolute hinge about their height axis, whose damped drive, stiffness toward the open angle, is the spring
-    that keeps them apart. They lie open on a rack (a block under the butt, one under the arms past their
-    middle), tips pointing at the hand's wrist side, with their tips around the cube, which stands on a narrow
-    post level with the arms' bottom edges. Only the fingers' squeeze on the arms closes them, and only the
-    tips' friction can then carry the cube. The fingers' drives press with up to 1.5-2 N m per joint
-    (``envs/agents/prl_hand.py``), far more than the spring, so a grasp that squeezes the arms shuts the
-    tweezers during the grasp itself: the tips must already stand around the cube (a plan cannot carry open
-    tweezers to it with this hand and executor).
+    that keeps them apart. They lie open on a rack: the butt stands in a
+    cradle (a block with low walls behind and beside it, open on top), a block carries the arms past their
+    middle, and a third carries the tips and the cube between them. Only the fingers' squeeze on the arms
+    closes them, and only the tips' friction can then carry the cube. The fingers' drives press with up to
+    1.5-2 N m per joint (``envs/agents/prl_hand.py``), far more than the spring, so a grasp that squeezes the
+    arms shuts the tweezers during the grasp itself: the tips must already stand around the cube (a plan cannot
+    carry open tweezers to it with this hand and executor). The cradle keeps a pinch from shoving or turning
+    the free tweezers before both fingers hold them; the tweezers lift straight out of it.
 
-    The RS reads here: the tool is the tweezers (T_gv = the arms between 40% and 60% of their length, where the
+    The RS reads here: the tool is the tweezers, whose frame (their root link's, ``TWEEZERS_LINK_IN_FRAME``)
+    has X from the tips towards the butt, Y up (T_gv = the arms between 40% and 60% of their length, where the
     palm's anchor goes; T_fv = the last 2 cm of the arms, the tips); the object is the cube (frame: its bottom
     face's centre, Z up). There is no transport or place: the motion acts from the grasp (finger_squeeze
     presses harder), then the task lifts the hand by 15 cm (``post_lift``); a5 is not acted on.
@@ -91,21 +109,22 @@ class PRLTweezeEnv(PRLTaskEnv):
     - arm length in [15, 17] cm, open tip gap in [4.0, 4.6] cm, spring stiffness in [1, 2] N m/rad,
       tweezers friction in [0.8, 1.2]
     - cube edge in [2.0, 2.5] cm, mass in [4, 15] g, friction in [0.6, 1.0], its spot between the tips +-3 mm
-      (nearer arm b)
+      (nearer arm a, ``CUBE_SIDE``)
     - tweezers (and cube) position +-2 cm in x, y and yaw +-10 deg
 
     **Success Conditions:**
-    - the cube's lowest point more than 10 cm above its post's top (where it rested) at the end, and no hand
-      link touching it (held by the tips only); reward = the lift l in cm; ``between_tips`` reports whether the
-      cube's centre lies between the arms' last 3 cm
+    - the cube's lowest point more than 10 cm above the block it rested on at the end, and no hand link
+      pressed on it in any physics frame of the episode (held by the tips only; a per-frame watch); reward =
+      the lift l in cm; ``between_tips`` reports whether the cube's centre lies between the arms' last 3 cm
     - fail: the tweezers fell off the table or the simulation produced NaN
     """
 
     task_name = "tweeze"
     measure_key = "cube_lift_cm"
-    expert_plan = (0, 3, 4, 2, 6, 0)
-    """No tilt, no twist, anchor 4, palmar pinch across the arms, finger squeeze, object Z || T_fv X (a5 is not
-    acted on). The best of the plans tried (README), not one that meets the 90% target."""
+    expert_plan = (2, 1, 4, 2, 6, 0)
+    """Palm tilted by -10 deg and turned by -20 deg (its little-finger side away from the tips: untwisted, it
+    brushed the cube on the way up), anchor 4, palmar pinch across the arms, finger squeeze, object Z || T_fv X
+    (a5 is not acted on)."""
     stages = StageSpec(
         shares=(("pregrasp", 0.22), ("approach", 0.12), ("grasp", 0.22), ("motion", 0.16), ("post_lift", 0.28)),
         fv_approach=(0.0, 0.0, 1.0),
@@ -151,26 +170,29 @@ class PRLTweezeEnv(PRLTaskEnv):
         return np.array([p["tweezers_x"], p["tweezers_y"], REST_HEIGHT]), axes
 
     def _rest_pose(self) -> sapien.Pose:
-        return pose_from_matrix(*self._rest_frame())
+        """The root link's pose at rest: the tweezers' frame turned by ``TWEEZERS_LINK_IN_FRAME``."""
+        origin, rotation = self._rest_frame()
+        return pose_from_matrix(origin, rotation @ TWEEZERS_LINK_IN_FRAME)
 
     def _cube_rest(self) -> tuple[np.ndarray, np.ndarray]:
-        """(centre, R) of the cube at rest: on its post between the open tips, its far face ``CUBE_INSIDE`` inside them."""
+        """(centre, R) of the cube at rest: on the tips' block between the open tips, its far face ``CUBE_INSIDE``
+        inside them."""
         p = self.scene_params
         origin, rotation = self._rest_frame()
         along = p["arm_length"] - CUBE_INSIDE - p["cube_size"] / 2 + p["cube_along"]
         gap = p["tip_gap"] * (along - p["cube_size"] / 2) / p["arm_length"]  # between the arms at the cube's near face
-        across = (gap - p["cube_size"]) / 2 - CUBE_TO_B + p["cube_across"]  # towards arm b (+z)
+        across = CUBE_SIDE * (gap - p["cube_size"]) / 2 + p["cube_across"]  # +: towards arm b (+z)
         center = origin + rotation @ np.array([along, 0.0, across])
         center[2] = self.rest_surface() + p["cube_size"] / 2
         return center, yaw_matrix(p["tweezers_yaw"])
 
     @staticmethod
     def rest_surface() -> float:
-        """Height (m) of the rack's tops and of the cube's post: the arms' bottom edges and the cube's bottom face."""
+        """Height (m) of the rack's tops: the arms' bottom edges and the cube's bottom face."""
         return REST_HEIGHT - TWEEZERS_ARM_HEIGHT / 2
 
     def _build_rack(self, params: dict[str, float]) -> None:
-        """Static blocks: one under the butt, one under the arms near the tips; the cube's post."""
+        """Static blocks: the butt's cradle, one under the arms past their middle, one under the tips and the cube."""
         origin, rotation = self._rest_frame()
         yaw, top = params["tweezers_yaw"], self.rest_surface()
         length, half_angle = params["arm_length"], tweezers_arm_angle(params["arm_length"], params["tip_gap"])
@@ -183,10 +205,28 @@ class PRLTweezeEnv(PRLTaskEnv):
         across = hi * length * np.sin(half_angle) + 2 * TWEEZERS_ARM_THICKNESS + 0.005
         self.rack_arms = self._build_static_box("rack_arms", np.array([mid[0], mid[1], top / 2]),
                                                 np.array([(hi - lo) / 2 * length, across, top / 2]), yaw, grey)
-        center, _ = self._cube_rest()
-        half = POST_FRACTION * params["cube_size"] / 2
-        self.post = self._build_static_box("post", np.array([center[0], center[1], top / 2]),
-                                           np.array([half, half, top / 2]), yaw, grey)
+        # the cradle: two walls on the butt block flanking the butt and the arms' first cm, so a push across the
+        # arms cannot shift or turn the tweezers; the tweezers lift straight out of it
+        x0, x1 = -TWEEZERS_BUTT_LENGTH - CRADLE_CLEARANCE, CRADLE_REACH
+        inner = 2 * TWEEZERS_ARM_THICKNESS + CRADLE_CLEARANCE
+        self.cradle = []
+        for side in (-1.0, 1.0):
+            c = origin + rotation @ np.array([(x0 + x1) / 2, 0.0, side * (inner + CRADLE_WALL / 2)])
+            self.cradle.append(self._build_static_box(
+                f"cradle_{'ab'[side > 0]}", np.array([c[0], c[1], top + CRADLE_HEIGHT / 2]),
+                np.array([(x1 - x0) / 2, CRADLE_WALL / 2, CRADLE_HEIGHT / 2]), yaw, grey))
+        back = origin + rotation @ np.array([x0 - CRADLE_WALL / 2, 0.0, 0.0])
+        self.cradle.append(self._build_static_box(
+            "cradle_back", np.array([back[0], back[1], top + CRADLE_HEIGHT / 2]),
+            np.array([CRADLE_WALL / 2, inner + CRADLE_WALL, CRADLE_HEIGHT / 2]), yaw, grey))
+        # the tips' rest: a block under the arms' last cm and the cube, level with the other two (a wider rest
+        # than a post: the cube pushed across by the closing tips stays on it)
+        lo = PLATFORM_FROM * length
+        hi = length * np.cos(half_angle) + 0.02
+        mid = origin + rotation @ np.array([(lo + hi) / 2, 0.0, 0.0])
+        across = length * np.sin(half_angle) + 2 * TWEEZERS_ARM_THICKNESS + 0.01
+        self.platform = self._build_static_box("platform", np.array([mid[0], mid[1], top / 2]),
+                                           np.array([(hi - lo) / 2, across, top / 2]), yaw, grey)
 
     def _build_tweezers(self, params: dict[str, float]) -> None:
         length, half_angle = params["arm_length"], tweezers_arm_angle(params["arm_length"], params["tip_gap"])
@@ -201,7 +241,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         root = builder.create_link_builder()
         root.set_name("arm_a")
         for pose, half in ((self._arm_pose(length, half_angle, -1.0), arm_half),
-                           (sapien.Pose(p=[-TWEEZERS_BUTT_LENGTH / 2, 0.0, 0.0]), butt_half)):
+                           (_in_link(np.array([-TWEEZERS_BUTT_LENGTH / 2, 0.0, 0.0]), np.eye(3)), butt_half)):
             root.add_box_collision(pose, half_size=list(half), material=material, density=density)
             root.add_box_visual(pose, half_size=list(half), material=steel)
         arm = builder.create_link_builder(root)
@@ -210,7 +250,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         arm.add_box_collision(pose, half_size=list(arm_half), material=material, density=density)
         arm.add_box_visual(pose, half_size=list(arm_half), material=steel)
         # the hinge about the tweezers' Y (up) at the butt; qpos > 0 swings arm b (+Z side) towards arm a (closing)
-        hinge = pose_from_matrix(np.zeros(3), rot_z(np.pi / 2))  # the joint's X axis onto the tweezers' Y
+        hinge = _in_link(np.zeros(3), rot_z(np.pi / 2))  # the joint's X axis onto the tweezers' Y
         closed = 2 * half_angle - TWEEZERS_ARM_THICKNESS / length  # the tips' inner faces meet
         arm.set_joint_properties("revolute", limits=[[-0.02, closed]], pose_in_parent=hinge, pose_in_child=hinge)
         arm.set_joint_name("hinge")
@@ -226,10 +266,10 @@ class PRLTweezeEnv(PRLTaskEnv):
         self.hinge.set_drive_target(torch.zeros(1))
         self.tool = self.tweezers.links_map["arm_a"]
         gap_gv = 2 * GV_AT[1] * length * np.sin(half_angle) + TWEEZERS_ARM_THICKNESS  # the arms' outer faces
-        self.tool_gv_local = (np.array([(GV_AT[0] + GV_AT[1]) * length / 2, 0.0, 0.0]),
+        self.tool_gv_local = (TWEEZERS_LINK_IN_FRAME.T @ np.array([(GV_AT[0] + GV_AT[1]) * length / 2, 0.0, 0.0]),
                               np.array([(GV_AT[1] - GV_AT[0]) * length / 2, TWEEZERS_ARM_HEIGHT / 2,
                                         gap_gv / 2 + TWEEZERS_ARM_THICKNESS]))
-        self.tool_fv_local = (np.array([length - 0.01, 0.0, 0.0]),
+        self.tool_fv_local = (TWEEZERS_LINK_IN_FRAME.T @ np.array([length - 0.01, 0.0, 0.0]),
                               np.array([0.01, TWEEZERS_ARM_HEIGHT / 2, params["tip_gap"] / 2 + TWEEZERS_ARM_THICKNESS]))
 
     @staticmethod
@@ -238,7 +278,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         angle, turned about Y, its inner face on the line from the hinge (the arms meet there)."""
         rotation = rot_y(-side * half_angle)  # x onto (cos, 0, side * sin)
         center = rotation @ np.array([length / 2, 0.0, side * TWEEZERS_ARM_THICKNESS / 2])
-        return pose_from_matrix(center, rotation)
+        return _in_link(center, rotation)
 
     def _build_cube(self, params: dict[str, float]) -> None:
         half = params["cube_size"] / 2
@@ -263,7 +303,14 @@ class PRLTweezeEnv(PRLTaskEnv):
         self.cube.set_pose(pose_from_matrix(center, rotation))
         self.cube.set_linear_velocity(torch.zeros((1, 3)))
         self.cube.set_angular_velocity(torch.zeros((1, 3)))
+        self._hand_touched_cube: list[str] = []  # hand links that pressed on the cube in any frame so far
         self._reset_hand()
+
+    def _after_simulation_step(self) -> None:
+        """Per physics frame: remember any hand link that presses on the cube (a success needs a cube the hand
+        never touched, not only one it lets go of by the end)."""
+        if not self._hand_touched_cube:
+            self._hand_touched_cube = self.hand_touches_cube()
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:
@@ -277,7 +324,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         return float(self.tweezers.get_qpos()[0, 0])
 
     def cube_lift_cm(self) -> torch.Tensor:
-        """(1,) lift of the cube in cm: how far its lowest corner is above the post top it rested on."""
+        """(1,) lift of the cube in cm: how far its lowest corner is above the block it rested on."""
         position, rotation = pose_to_numpy(self.cube.pose.raw_pose)
         half = np.full(3, self.scene_params["cube_size"] / 2)
         return torch.tensor([(float(_box_corners(position, half, rotation)[:, 2].min()) - self.rest_surface()) * 100.0])
@@ -286,7 +333,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         """Whether the cube's centre lies between the arms' last 3 cm (in the tweezers' frame)."""
         tool_p, tool_r = pose_to_numpy(self.tool.pose.raw_pose)
         cube_p, _ = pose_to_numpy(self.cube.pose.raw_pose)
-        local = tool_r.T @ (cube_p - tool_p)
+        local = TWEEZERS_LINK_IN_FRAME @ tool_r.T @ (cube_p - tool_p)
         length = self.scene_params["arm_length"]
         return bool(length - 0.03 <= local[0] <= length + 0.005 and abs(local[2]) <= self.scene_params["tip_gap"] / 2
                     and abs(local[1]) <= TWEEZERS_ARM_HEIGHT + self.scene_params["cube_size"])
@@ -294,6 +341,11 @@ class PRLTweezeEnv(PRLTaskEnv):
     def hand_touches_cube(self) -> list[str]:
         """Names of the hand links in contact with the cube now (simulated contacts with a non-zero impulse)."""
         return self.hand_links_touching(self.cube._bodies[0])
+
+    def hand_touched_cube(self) -> list[str]:
+        """The hand links that pressed on the cube in a frame of this episode (the first frame with any), or that
+        press on it now."""
+        return self._hand_touched_cube or self.hand_touches_cube()
 
     def tool_is_broken(self) -> torch.Tensor:
         broken = super().tool_is_broken()
@@ -303,7 +355,7 @@ class PRLTweezeEnv(PRLTaskEnv):
     def evaluate(self) -> dict[str, torch.Tensor]:
         lift = self.cube_lift_cm()
         broken = self.tool_is_broken() | ~torch.isfinite(lift)
-        touched = bool(self.hand_touches_cube())
+        touched = bool(self.hand_touched_cube())
         return {
             "success": (lift > SUCCESS_LIFT_CM) & ~broken & torch.tensor([not touched]),
             "fail": broken,
