@@ -52,6 +52,9 @@ VIEWS: dict[str, View] = {
     "workspace": View(eye=(0.33, -0.51, 0.39), target=(0.035, 0.005, 0.14), fovy_deg=42.0),
     # close-up that follows the hammer's handle (hand and grasp fill the picture)
     "closeup": View(eye=(0.12, -0.22, 0.12), target=(0.02, 0.0, -0.01), fovy_deg=45.0, follow_tool=True),
+    # close-up from below and in front of the tool, which it follows: what the fingers (or tweezers' tips) hold
+    # under the hand, e.g. the cube between the tips once lifted
+    "below": View(eye=(-0.05, -0.26, -0.06), target=(-0.06, 0.0, 0.0), fovy_deg=45.0, follow_tool=True),
 }
 """Named camera views; ``workspace`` is the default."""
 

@@ -97,3 +97,22 @@ def test_a_pinch_lifts_the_cube_by_the_tips_and_open_fingers_never_do(env, monke
     for seed in (0, 1):
         result = executor.run(EXPERT, seed=seed)
         assert result.outcome["cube_lift_cm"] < 1.0 and not result.success
+
+
+@pytest.mark.sim
+def test_bad_plans_and_task_names_get_clear_errors(env) -> None:
+    from envs.executor import PlanExecutor
+    from envs.tasks import make_env
+    from prl.plb import PLBError
+
+    executor = PlanExecutor(env)
+    env.reset(seed=3)
+    before, params = env.tweezers.pose.raw_pose.clone(), dict(env.scene_params)
+    with pytest.raises(PLBError, match=r"plan entry for grasp_pattern is 9, out of range; allowed 0..3"):
+        executor.run((2, 1, 4, 9, 6, 0), seed=4)
+    with pytest.raises(PLBError, match=r"plan must have 6 entries"):
+        executor.run((2, 1, 4, 2, 6), seed=4)
+    # refused before the reset: scene 3 is still there, untouched (scene 4 would have other parameters)
+    assert env.scene_params == params and (env.tweezers.pose.raw_pose == before).all()
+    with pytest.raises(ValueError, match=r"unknown task 'tweezer'; known tasks: .*'tweeze'"):
+        make_env("tweezer")
