@@ -79,9 +79,13 @@ def test_the_spring_reopens_the_tweezers_when_released(env) -> None:
 @pytest.mark.sim
 def test_a_pinch_lifts_the_cube_by_the_tips_and_open_fingers_never_do(env, monkeypatch) -> None:
     from envs import executor as ex_mod
+    from honesty import no_state_writes
 
     executor = ex_mod.PlanExecutor(env)
-    result = executor.run(EXPERT, seed=1)
+    executor.observe(seed=1)
+    with no_state_writes(monkeypatch) as writes:  # nothing sets a pose or joint state of tweezers or cube
+        result = executor.run(EXPERT)
+    assert writes == []
     assert result.success and result.outcome["cube_lift_cm"] > 10.0
     assert result.outcome["between_tips"] and not result.outcome["hand_touches_cube"]
     assert env.tweezers_opening() > 0.05  # held shut on the cube by the fingers
