@@ -78,8 +78,9 @@ def test_the_spring_reopens_the_tweezers_when_released(env) -> None:
 
 @pytest.mark.sim
 def test_a_pinch_lifts_the_cube_by_the_tips_and_open_fingers_never_do(env, monkeypatch) -> None:
-    from envs import executor as ex_mod
     from honesty import no_state_writes
+
+    from envs import executor as ex_mod
 
     executor = ex_mod.PlanExecutor(env)
     executor.observe(seed=1)

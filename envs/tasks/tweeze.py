@@ -15,8 +15,13 @@ from sapien import physx
 from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.geometry import rot_y, rot_z
-from prl.shapes import (TWEEZERS_ARM_HEIGHT, TWEEZERS_ARM_THICKNESS, TWEEZERS_BUTT_LENGTH, TWEEZERS_LINK_IN_FRAME,
-                        tweezers_arm_angle)
+from prl.shapes import (
+    TWEEZERS_ARM_HEIGHT,
+    TWEEZERS_ARM_THICKNESS,
+    TWEEZERS_BUTT_LENGTH,
+    TWEEZERS_LINK_IN_FRAME,
+    tweezers_arm_angle,
+)
 
 # --- randomised geometry and physics (metres, kilograms, newtons) --------------------------------
 ARM_LENGTH_RANGE = (0.15, 0.17)
