@@ -25,8 +25,10 @@ def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str,
     ax0.set_ylim(0, 1.25)
     ax0.set_ylabel("success rate (simulated)")
     ax0.set_title(f"{task}: plans executed on randomised scenes")
-    top = max([float(np.max(v)) for v in measures.values() if len(v)] + [1e-6])
-    bins = np.linspace(0.0, top, 26)  # shared bins, so the kinds compare bar for bar
+    present = [np.asarray(v, dtype=float) for v in measures.values() if len(v)]
+    top = max([float(v.max()) for v in present] + [1e-6])
+    bottom = min([float(v.min()) for v in present] + [0.0])  # a measure can be negative (a cube fallen below its rest)
+    bins = np.linspace(bottom, top, 26)  # shared bins, so the kinds compare bar for bar
     for k in kinds:
         values = np.asarray(measures[k], dtype=float)
         if values.size:
