@@ -1,6 +1,6 @@
-"""PRL-Tweeze-v1: the hinge spring holds the tweezers open and
-reopens them, the same seed builds the same scene, and physics decides: a pinch that shuts the tips carries the
-cube up, fingers that do not close never lift it, and a cube the hand touches does not count."""
+"""PRL-Tweeze-v1: the hinge spring holds the tweezers open and reopens them, the same seed builds the same scene
+and gives the same outcome, and physics decides: a pinch that shuts the tips carries the cube up, fingers that do
+not close never lift it, and a cube the hand touched at any time does not count."""
 
 from __future__ import annotations
 
@@ -90,6 +90,7 @@ def test_a_pinch_lifts_the_cube_by_the_tips_and_open_fingers_never_do(env, monke
     assert result.success and result.outcome["cube_lift_cm"] > 10.0
     assert result.outcome["between_tips"] and not result.outcome["hand_touches_cube"]
     assert env.tweezers_opening() > 0.05  # held shut on the cube by the fingers
+    assert executor.run(EXPERT, seed=1).outcome == result.outcome  # same scene, same plan: the same outcome
     # without the twist, the same pinch lifts the cube as high, but on the way up the palm's little-finger side
     # brushes it (and lets go of it by the end): not a success
     result = executor.run((0, 3, 4, 2, 6, 0), seed=0)
