@@ -210,11 +210,11 @@ class PRLTweezeEnv(PRLTaskEnv):
         across = hi * length * np.sin(half_angle) + 2 * TWEEZERS_ARM_THICKNESS + 0.005
         self.rack_arms = self._build_static_box("rack_arms", np.array([mid[0], mid[1], top / 2]),
                                                 np.array([(hi - lo) / 2 * length, across, top / 2]), yaw, grey)
-        # the cradle: walls beside the butt and the arms' first 2 cm (whose outer faces stay inside the butt's
-        # width at any randomised opening) and one behind the butt, so a push across or along the arms cannot shift
-        # or turn the tweezers; they lift straight out of it
+        # the cradle: walls beside the butt and the arms' first 2 cm and one behind the butt, so a push across or
+        # along the arms cannot shift or turn the tweezers; they lift straight out of it
         x0, x1 = -TWEEZERS_BUTT_LENGTH - CRADLE_CLEARANCE, CRADLE_REACH
-        inner = 2 * TWEEZERS_ARM_THICKNESS + CRADLE_CLEARANCE
+        arm_outer = CRADLE_REACH * np.sin(half_angle) + TWEEZERS_ARM_THICKNESS * np.cos(half_angle)
+        inner = max(2 * TWEEZERS_ARM_THICKNESS, arm_outer) + CRADLE_CLEARANCE  # clear of the butt and the open arms
         self.cradle = []
         for side in (-1.0, 1.0):
             c = origin + rotation @ np.array([(x0 + x1) / 2, 0.0, side * (inner + CRADLE_WALL / 2)])
