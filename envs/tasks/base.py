@@ -162,6 +162,10 @@ class PRLTaskEnv(BaseEnv):
         """Load the hand with its fixed root at the world origin (the arm joints carry it from there)."""
         super()._load_agent(options, sapien.Pose() if initial_agent_poses is None else initial_agent_poses,
                             build_separate)
+        # the hand's PhysX entities -> link names, built once per (re)built scene: the per-frame contact watches
+        # ask it every frame, and building it took 16 us against 0.4 us for the contact scan at rest
+        self._hand_link_names = {} if self.agent is None else {
+            link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
 
     def _build_table(self) -> None:
         """Build the static table (top at z = 0) and a floor plane under it."""
@@ -254,9 +258,7 @@ class PRLTaskEnv(BaseEnv):
 
     def hand_links_among(self, bodies: list[Any]) -> list[str]:
         """Names of the hand links among the PhysX ``bodies``. Empty without an agent."""
-        if self.agent is None:
-            return []
-        hand = {link._objs[0].entity: link.name for link in self.agent.robot.get_links()}
+        hand = self._hand_link_names
         return sorted({hand[b.entity] for b in bodies if b.entity in hand})
 
     def hand_links_touching(self, body: Any, shape: Any = None) -> list[str]:
