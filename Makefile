@@ -2,20 +2,20 @@
 .PHONY: setup pipeline test test-fast probe
 
 export XDG_RUNTIME_DIR ?= /tmp/prl-runtime
-export HF_HUB_OFFLINE := 1
 
 setup:
 	@bash scripts/setup.sh
 
 pipeline: setup
-	.venv/bin/python -m flows.full_pipeline
+	.venv/bin/prl-pipeline
 
 test: setup
 	@mkdir -p $(XDG_RUNTIME_DIR)
 	.venv/bin/python -m pytest -q
 
 test-fast: setup
-	.venv/bin/python -m pytest -q -m "not sim and not train"
+	@mkdir -p $(XDG_RUNTIME_DIR)
+	.venv/bin/python -m pytest -q -m "not sim and not train and not integration"
 
 probe: setup
 	.venv/bin/python -m envs.render_probe

@@ -1,6 +1,6 @@
 """Benchmark (not a test): plan-executor speed vs raw PhysX and vs ManiSkill's ``env.step``.
 
-On the hammer scene, in one process, measured side by side (DESIGN.md sec. 8 "Speed"):
+On the hammer scene, in one process, measured side by side (docs/design.md "Speed"; results in docs/speed.md):
 
 (a) raw ``scene.step()`` frames/s on the scene where the hand holds the hammer (the limit);
 (b) frames/s of ``PlanExecutor`` running the full expert plan episode (3 s of simulated time, recording
@@ -37,6 +37,8 @@ os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 import numpy as np
 
+from prl.stages import STAGES
+
 EXPERT = (0, 3, 2, 0, 0, 1)
 RSS_BUDGET_GB = 1.2
 #: A tool counts as held when it is this far (m) above its rest height and touches >= 3 sensors.
@@ -54,8 +56,6 @@ def _peak_rss_gb() -> float:
 
 
 def _lift_end_frame(executor: Any) -> int:
-    from envs.executor import STAGES
-
     frames = type(executor.env).stages.stage_frames(executor.config.n_frames)
     return int(np.sum(frames[: STAGES.index("lift") + 1]))
 
@@ -66,7 +66,7 @@ def reach_held_state(env: Any, executor: Any, seed: int) -> dict[str, Any]:
     Returns the tool's rest height, the drive targets (``JOINT_NAMES`` order) left on the joints
     and the sensor reader. The scene is left exactly as the executor leaves it after its last lift
     frame (nothing is set by hand)."""
-    from envs.sensors import ContactSensors
+    from envs.sensors import ContactSensors  # heavy: loads the simulator
 
     u = env.unwrapped
     env.reset(seed=int(seed))  # through the gym wrappers, so that env.step() may follow
@@ -219,7 +219,8 @@ def main(argv: list[str] | None = None) -> None:
 
     t_start = time.perf_counter()
     import envs.agents  # noqa: F401  (registers prl_hand)
-    from envs.executor import ExecutorConfig, PlanExecutor
+    from envs.execution import ExecutorConfig
+    from envs.executor import PlanExecutor
     from envs.tasks import make_env
 
     env = make_env("hammer", control_mode="pd_joint_pos")

@@ -23,12 +23,14 @@ if __package__ in (None, ""):  # ``python bench/bench_ln.py``
 
 import numpy as np
 
+from prl.config import LNConfig
+
 
 def measure(n_envs: int, timesteps: int, pointnet: Path, seed: int) -> float:
     """Timesteps per second of ``learn`` with ``n_envs`` plan environments (start-up excluded)."""
-    from envs.plan_env import make_vec_env
-    from envs.tasks import fast_resets
-    from prl.ln import LNConfig, make_ln
+    from envs.tasks import fast_resets  # heavy: loads the simulator
+    from envs.vec_env import make_vec_env
+    from prl.ln import make_ln
 
     env = make_vec_env("hammer", n_envs, run_seed=seed, pointnet_path=pointnet)
     try:
@@ -57,10 +59,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"round {r}: {n} env(s) {rates[n][-1]:.2f} timesteps/s", flush=True)
     one, two = float(np.median(rates[1])), float(np.median(rates[2]))
     print(f"\nmedian timesteps/s: 1 env {one:.2f}, 2 envs {two:.2f}; ratio 2/1 = {two / one:.2f}x")
-    best = max(one, two)
-    print(f"paper-scale LN run (3200 timesteps): {3200 / best / 60:.0f} min at {best:.2f} timesteps/s")
-    print(f"hammer Fig 8 sweep, 9 plan-env points x 3200 timesteps, one point per core on 2 cores: "
-          f"{9 * 3200 / one / 2 / 3600:.1f} h (joint-control points and evaluations not included)")
+    best, paper = max(one, two), LNConfig().timesteps
+    print(f"paper-scale LN run ({paper} timesteps): {paper / best / 60:.0f} min at {best:.2f} timesteps/s")
+    print(f"hammer Fig 8 sweep, 9 plan-env points x {paper} timesteps, one point per core on 2 cores: "
+          f"{9 * paper / one / 2 / 3600:.1f} h (joint-control points and evaluations not included)")
     return 0
 
 

@@ -35,6 +35,7 @@ os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp/prl-runtime")
 os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
 
 import numpy as np
+from tqdm.auto import tqdm
 
 YARDSTICK_STEPS = 400
 
@@ -71,7 +72,8 @@ def cost(rounds: int, settings: list[tuple[int, int] | None], tasks: tuple[str, 
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  (registers PickCube-v1)
 
-    from envs.executor import ExecutorConfig, PlanExecutor
+    from envs.execution import ExecutorConfig
+    from envs.executor import PlanExecutor
     from envs.tasks import fast_resets
     from envs.trials import plan_set
 
@@ -122,7 +124,7 @@ def cost(rounds: int, settings: list[tuple[int, int] | None], tasks: tuple[str, 
 
 def pairs(n: int, seed: int = 0) -> list[tuple[int, str, tuple[int, ...]]]:
     """``n`` fixed (scene seed, kind, plan) pairs, kinds in turn."""
-    from envs.trials import PLAN_KINDS, plan_set
+    from envs.trials import PLAN_KINDS, plan_set  # heavy: loads the simulator
 
     per_kind = {k: plan_set("hammer", k, n, seed + i) for i, k in enumerate(PLAN_KINDS)}
     return [(20_000 + i, PLAN_KINDS[i % 3], per_kind[PLAN_KINDS[i % 3]][i]) for i in range(n)]
@@ -131,9 +133,9 @@ def pairs(n: int, seed: int = 0) -> list[tuple[int, str, tuple[int, ...]]]:
 def carry_slip_mm(result: Any) -> float | None:
     """How far (mm) the tool moved in the palm's frame from the end of the lift to the end of the transport,
     if the hand held it at the end of the lift (>= 3 sensors over 0.5 N); None otherwise."""
-    import sapien
+    import sapien  # heavy: the simulator
 
-    from envs.executor import STAGES
+    from prl.stages import STAGES
 
     lift = np.flatnonzero(result.stage == STAGES.index("lift"))
     carry = np.flatnonzero(result.stage == STAGES.index("transport"))
@@ -149,9 +151,8 @@ def carry_slip_mm(result: Any) -> float | None:
 
 
 def fidelity(n: int, settings: list[tuple[int, int]], out: Path) -> None:
-    from tqdm.auto import tqdm
-
-    from envs.executor import ExecutorConfig, PlanExecutor
+    from envs.execution import ExecutorConfig  # heavy: loads the simulator
+    from envs.executor import PlanExecutor
     from envs.tasks import fast_resets
 
     out.mkdir(parents=True, exist_ok=True)
@@ -177,7 +178,7 @@ def fidelity(n: int, settings: list[tuple[int, int]], out: Path) -> None:
 
 
 def report(out: Path, settings: list[tuple[int, int]], n: int) -> None:
-    from envs.trials import PLAN_KINDS
+    from envs.trials import PLAN_KINDS  # heavy: loads the simulator
 
     rows = {}
     for s in settings:

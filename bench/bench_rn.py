@@ -27,14 +27,14 @@ if __package__ in (None, ""):  # ``python bench/bench_rn.py``
 
 import numpy as np
 
+from prl.constants import RS_DIMS
+
 IN_DIM = 1680
 PAPER_SAMPLES = 8000
 PAPER_EPOCHS = 200
 
 
 def _data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    from prl.constants import RS_DIMS
-
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(n, IN_DIM)).astype(np.float32)
     y = np.stack([rng.integers(0, m, n) for m in RS_DIMS], axis=1)
@@ -43,7 +43,8 @@ def _data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def measure_train_rn(x: np.ndarray, y: np.ndarray, epochs: int, seed: int) -> list[float]:
     """(a) samples/s of each ``train_rn`` epoch after the first (samples = batches x batch size)."""
-    from prl.rn import RNConfig, train_rn
+    from prl.rn import RNConfig  # heavy: torch
+    from prl.rn_train import train_rn
 
     cfg = RNConfig(epochs=epochs, seed=seed)
     _, history = train_rn(x, y, cfg, progress=False)
@@ -53,7 +54,7 @@ def measure_train_rn(x: np.ndarray, y: np.ndarray, epochs: int, seed: int) -> li
 
 def measure_steps(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> float:
     """(b) samples/s of bare optimiser steps (one warm-up step excluded)."""
-    import torch
+    import torch  # heavy: torch
 
     from prl.rn import RepresentationNetwork, RNConfig, rn_loss, split_logits
 
@@ -90,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.epochs < 2:
         parser.error(f"--epochs must be >= 2 (the first epoch is warm-up), got {args.epochs}")
 
-    import torch
+    import torch  # heavy: torch
 
     t_start = time.perf_counter()
     load0 = os.getloadavg()

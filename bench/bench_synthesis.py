@@ -21,7 +21,7 @@ from pathlib import Path
 
 
 def _run(workers: int, demos: int, shards: int, seed: int, out: Path) -> tuple[float, int, int]:
-    from flows.synthesize import shard_specs, synthesize
+    from flows.synthesize import shard_specs, synthesize  # heavy: loads the simulator
 
     specs = shard_specs(["hammer"], demos, seed, shards, out)
     t0 = time.perf_counter()

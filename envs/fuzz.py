@@ -3,7 +3,7 @@
 A valid plan on any scene a task can build must end as an ``EpisodeResult`` (a success or a failure with
 its reason), never as an exception, and its recordings must be finite. ``fuzz_task`` runs ``n_pairs``
 (scene, plan) pairs, each drawn from ``seed``, and counts successes, failures by fault
-(``envs.executor.FAULTS``), exceptions (with their text) and non-finite recordings. After an exception the
+(``prl.stages.FAULTS``), exceptions (with their text) and non-finite recordings. After an exception the
 environment is rebuilt, so one bad pair does not spoil the next.
 
     python -m envs.fuzz --tasks hammer,sweep --pairs 500 --randomization 4 --out docs/fuzz.json
@@ -20,6 +20,9 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from envs.executor import PlanExecutor
+from envs.tasks import TASK_ENV_IDS, fast_resets, make_env
+from envs.trials import error_text
 from prl.plb import load_plb
 
 
@@ -34,7 +37,7 @@ class FuzzReport:
     """(scene, plan) pairs run."""
     successes: int = 0
     faults: dict[str, int] = field(default_factory=dict)
-    """Failed attempts per fault: ``none`` (physics alone failed the plan) or one of ``envs.executor.FAULTS``."""
+    """Failed attempts per fault: ``none`` (physics alone failed the plan) or one of ``prl.stages.FAULTS``."""
     exceptions: list[str] = field(default_factory=list)
     """One line per pair that raised: seed, plan and the error."""
     nonfinite: list[str] = field(default_factory=list)
@@ -50,10 +53,6 @@ def episode_is_finite(result: object) -> bool:
 
 def fuzz_task(task: str, n_pairs: int, randomization: float = 4.0, seed: int = 0, progress: bool = True) -> FuzzReport:
     """Run ``n_pairs`` uniformly random plans on scenes of ``task`` at ``randomization``; count the endings."""
-    from envs.executor import PlanExecutor
-    from envs.tasks import fast_resets, make_env
-    from envs.trials import error_text
-
     if n_pairs <= 0:
         raise ValueError(f"n_pairs must be > 0, got {n_pairs!r}")
     plb = load_plb()
@@ -89,8 +88,6 @@ def fuzz_task(task: str, n_pairs: int, randomization: float = 4.0, seed: int = 0
 
 
 def main(argv: list[str] | None = None) -> None:
-    import envs  # noqa: F401  (registers the tasks)
-    from envs.tasks import TASK_ENV_IDS
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", default=",".join(TASK_ENV_IDS), help="comma-separated task names (default: all)")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -257,8 +258,6 @@ def verify_generated(kinematics: Path | str = KINEMATICS_PATH, urdf: Path | str 
     Raises ``HandModelError`` naming the stale or missing file (regenerate with
     ``python -m envs.hand_model``).
     """
-    import hashlib
-
     spec = load_spec(kinematics)
     urdf = Path(urdf)
     for path, text in ((urdf, build_urdf(spec)), (urdf.with_suffix(".srdf"), build_srdf(spec))):

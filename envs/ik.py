@@ -20,8 +20,9 @@ import re
 from typing import Any
 
 import numpy as np
+import torch
 
-from envs.hand_model import URDF_PATH, palm_anchors
+from envs.hand_model import URDF_PATH, default_spec, palm_anchors
 from prl.constants import JOINT_NAMES, N_ANCHORS
 from prl.geometry import rot_x, rot_y, rot_z
 
@@ -34,8 +35,7 @@ _ROT_TOL = np.deg2rad(0.05)
 @functools.lru_cache(maxsize=1)
 def _chain() -> Any:
     """The pytorch-kinematics chain of the hand-arm (float64, CPU), built once per process."""
-    import pytorch_kinematics as pk
-    import torch
+    import pytorch_kinematics as pk  # heavy (torch + its own kinematics): loaded on the first IK call
 
     text = URDF_PATH.read_text()
     # pytorch-kinematics only needs the kinematics; drop the geometry (it does not know <capsule>).
@@ -56,8 +56,6 @@ def _as_q(q: Any) -> np.ndarray:
 def link_pose(q: Any, link: str = PALM_LINK, root: np.ndarray | None = None) -> np.ndarray:
     """World 4x4 pose of ``link`` for joint vector ``q`` (30,); ``root``: 4x4 pose of the
     articulation root (identity by default, as in the agent's keyframes)."""
-    import torch
-
     chain = _chain()
     th = torch.as_tensor(_as_q(q)[None], dtype=torch.float64)
     fk = chain.forward_kinematics(th, frame_indices=chain.get_frame_indices(link))
@@ -155,8 +153,6 @@ def solve_palm_pose(target_pos: Any, target_R: Any, q_init: Any, finger_q: Any =
 
 @functools.lru_cache(maxsize=1)
 def _arm_limits_cached() -> tuple[tuple[float, ...], tuple[float, ...]]:
-    from envs.hand_model import default_spec
-
     limits = default_spec().joint_limits()
     names = JOINT_NAMES[ARM]
     return tuple(limits[n][0] for n in names), tuple(limits[n][1] for n in names)
@@ -169,8 +165,7 @@ def _arm_limits() -> tuple[np.ndarray, np.ndarray]:
 
 def _refine(q: np.ndarray, target_pos: np.ndarray, target_R: np.ndarray, local: np.ndarray) -> np.ndarray:
     """Numerical fallback: pytorch-kinematics PseudoInverseIK over the six arm joints."""
-    import pytorch_kinematics as pk
-    import torch
+    import pytorch_kinematics as pk  # heavy (torch + its own kinematics): loaded on the first IK call
 
     chain = _chain()
     serial = pk.SerialChain(chain, PALM_LINK)

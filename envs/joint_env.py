@@ -15,12 +15,17 @@ The episode ends with ``terminated=True`` at its fixed horizon (the task's end, 
 from __future__ import annotations
 
 import logging
+import warnings
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
+from tqdm.auto import tqdm
 
-from envs.plan_env import SceneStream
+from envs.scene_stream import SceneStream
+from envs.tasks import make_env, task_class
+from envs.trials import TrialOutcome, error_text
 
 _log = logging.getLogger(__name__)
 
@@ -37,8 +42,6 @@ class JointControlEnv(SceneStream, gym.Env):
 
     def __init__(self, task: str, run_seed: int = 0, rank: int = 0, randomization: float = 1.0,
                  frames_per_step: int = JOINT_FRAMES_PER_STEP, steps: int = JOINT_STEPS) -> None:
-        import envs  # noqa: F401  (registers the hand and the tasks, also in a vector-env subprocess)
-        from envs.tasks import task_class
 
         self.measure_key = task_class(task).measure_key  # ValueError naming an unknown task
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
@@ -58,8 +61,6 @@ class JointControlEnv(SceneStream, gym.Env):
         self._measure = 0.0
 
     def _build(self) -> None:
-        from envs.tasks import make_env
-
         self._env = make_env(self.task, control_mode="pd_joint_pos", obs_mode="state",
                              randomization=self.randomization)
         u = self._env.unwrapped
@@ -93,10 +94,6 @@ class JointControlEnv(SceneStream, gym.Env):
         target = self._low + (np.clip(a, -1.0, 1.0) + 1.0) / 2.0 * (self._high - self._low)
         info: dict[str, Any] = {"scene_seed": self.scene_seed, "error": "", "fault": ""}
         try:
-            import warnings
-
-            import torch
-
             command = torch.as_tensor(target, dtype=torch.float32)[None]
             with warnings.catch_warnings():  # ManiSkill's NaN check calls np.isnan on the tensor (NumPy 2 deprecation)
                 warnings.simplefilter("ignore", DeprecationWarning)
@@ -105,8 +102,6 @@ class JointControlEnv(SceneStream, gym.Env):
             measure = float(sim_info[self.measure_key].reshape(-1)[0])
             success = bool(sim_info["success"].reshape(-1)[0])
         except Exception as exc:  # noqa: BLE001 - one episode's error must not end training
-            from envs.trials import error_text
-
             info["error"] = error_text(exc)
             _log.warning("%s joint episode on scene %d raised: %s", self.task, self.scene_seed, info["error"])
             self.close()
@@ -130,10 +125,6 @@ def run_joint_policy(task: str, policy: Any, seeds: list[int], randomization: fl
                      progress: bool = True) -> list[Any]:
     """The deterministic joint-control ``policy`` (an SB3 policy) for one episode on the scene of each seed;
     one ``envs.trials.TrialOutcome`` each (plan ``()``: there is none)."""
-    from tqdm.auto import tqdm
-
-    from envs.trials import TrialOutcome
-
     env = JointControlEnv(task, randomization=randomization)
     out = []
     try:

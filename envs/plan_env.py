@@ -13,9 +13,8 @@
 
 The reward is read from the simulated state by the task's ``evaluate()``; nothing else.
 
-Scene seeds: episode ``i`` of the stream ``(run_seed, rank)`` runs on ``ln_scene_seed(run_seed, rank, i)``;
-``reset(seed=s)`` restarts the stream at episode 0 with run seed ``s``, and ``reset(options={"scene_seed": n})``
-runs one episode on scene ``n`` without advancing the stream (evaluation).
+Scene seeds come from ``envs.scene_stream.SceneStream`` (shared with the joint-control baseline);
+``envs.vec_env.make_vec_env`` steps several of these environments in parallel.
 An attempt that raises (a PhysX error, a bug) is a failed episode with reward 0 and the error text in
 ``info["error"]``; the simulator is rebuilt at the next reset, so training goes on.
 """
@@ -23,46 +22,23 @@ An attempt that raises (a PhysX error, a bug) is a failed episode with reward 0 
 from __future__ import annotations
 
 import logging
-import os
-import zlib
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from envs.execution import ExecutorConfig
+from envs.executor import PlanExecutor
+from envs.scene_stream import SceneStream, ln_scene_seed
+from envs.tasks import make_env, task_class
+from envs.trials import error_text
 from prl.constants import EPISODE_FRAMES
+from prl.features import FEATURE_LAYOUT, scene_features
+from prl.plb import load_plb
+from prl.pointnet import load_pointnet
 
 _log = logging.getLogger(__name__)
-
-
-def ln_scene_seed(run_seed: int, rank: int, episode: int) -> int:
-    """Scene seed of LN training episode ``episode`` of environment ``rank`` in a run seeded ``run_seed``.
-
-    A hash, so it does not meet the RN evaluation's consecutive seeds (10,000,000 + ...) on which the
-    final policy is evaluated, nor the trials' seeds, except by a 1-in-4-billion chance per pair."""
-    return zlib.crc32(f"ln/{int(run_seed)}/{int(rank)}/{int(episode)}".encode())
-
-
-class SceneStream:
-    """The scene-seed stream of the LN's environments: ``run_seed``, ``rank``, the next ``episode`` and the
-    current ``scene_seed`` (see the module docstring)."""
-
-    run_seed: int
-    rank: int
-    episode: int = 0
-    scene_seed: int | None = None
-
-    def next_scene(self, seed: int | None, options: dict[str, Any] | None) -> int:
-        """The scene of the episode a ``reset(seed=..., options=...)`` starts (and the stream advanced past it)."""
-        if seed is not None:
-            self.run_seed, self.episode = int(seed), 0
-        if options and "scene_seed" in options:
-            self.scene_seed = int(options["scene_seed"])
-        else:
-            self.scene_seed = ln_scene_seed(self.run_seed, self.rank, self.episode)
-            self.episode += 1
-        return self.scene_seed
 
 
 class PlanEnv(SceneStream, gym.Env):
@@ -72,12 +48,6 @@ class PlanEnv(SceneStream, gym.Env):
 
     def __init__(self, task: str, pointnet_path: str | Path, n_points: int = 512, run_seed: int = 0, rank: int = 0,
                  randomization: float = 1.0, n_frames: int = EPISODE_FRAMES) -> None:
-        import envs  # noqa: F401  (registers the hand and the tasks, also in a vector-env subprocess)
-        from envs.tasks import task_class
-        from prl.features import FEATURE_LAYOUT
-        from prl.plb import load_plb
-        from prl.pointnet import load_pointnet
-
         cls = task_class(task)  # ValueError naming an unknown task
         if not randomization > 0:
             raise ValueError(f"randomization must be > 0, got {randomization!r}")
@@ -117,8 +87,6 @@ class PlanEnv(SceneStream, gym.Env):
         try:
             result = self._executor.run(plan)
         except Exception as exc:  # noqa: BLE001 - one attempt's error must not end training
-            from envs.trials import error_text
-
             info.update(success=False, measure=0.0, error=error_text(exc), frames=0)
             _log.warning("%s plan %s on scene %d raised: %s", self.task, plan.tolist(), self.scene_seed, info["error"])
             self.close()
@@ -136,9 +104,6 @@ class PlanEnv(SceneStream, gym.Env):
 
     def build(self) -> None:
         """Create the simulator (done lazily by the first reset; again after an attempt raised)."""
-        from envs.executor import ExecutorConfig, PlanExecutor
-        from envs.tasks import make_env
-
         if self._env is None:
             self._env = make_env(self.task, randomization=self.randomization)
             self._executor = PlanExecutor(self._env, ExecutorConfig(n_frames=self.n_frames))
@@ -149,8 +114,6 @@ class PlanEnv(SceneStream, gym.Env):
 
         Done before ``fast_resets`` freezes the heap, so that these objects are frozen too; made after the freeze,
         they would be walked by ManiSkill's ``gc.collect()`` on every scene rebuild."""
-        from envs.tasks import task_class
-
         self.build()
         stream = (self.episode, self.scene_seed)
         self.reset(options={"scene_seed": ln_scene_seed(self.run_seed, self.rank, 0)})
@@ -160,8 +123,6 @@ class PlanEnv(SceneStream, gym.Env):
     # ------------------------------------------------------------------ internals
     def _observe(self, scene_seed: int, tries: int = 3) -> np.ndarray:
         """x of the scene ``scene_seed`` after its observation phase (rebuilding the simulator after an error)."""
-        from prl.features import scene_features
-
         for attempt in range(tries):
             self.build()
             try:
@@ -177,58 +138,3 @@ class PlanEnv(SceneStream, gym.Env):
         text = self.texts[scene_seed % len(self.texts)]  # the same scene always reads the same sentence
         x = scene_features(self.task, scene_seed, params, x_manip, text, self.pointnet, self.n_points)[0]
         return np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
-
-
-def make_vec_env(task: str, n_envs: int = 1, joint: bool = False, run_seed: int = 0, **kwargs: Any) -> Any:
-    """An SB3 vector env of ``n_envs`` ``PlanEnv`` (or ``JointControlEnv`` when ``joint``) of ``task``, ranks
-    0..n_envs-1 of the ``run_seed`` stream; ``kwargs`` go to the env. One env steps in this process; more
-    step in parallel in spawned subprocesses, one scene each."""
-    from functools import partial
-
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-
-    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
-        raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}")
-    fns = [partial(_make_env, joint, task, run_seed, rank, n_envs > 1, kwargs) for rank in range(n_envs)]
-    if n_envs == 1:
-        return DummyVecEnv(fns)
-    # one core per env: BLAS/OpenMP pools sized for the whole machine in every worker oversubscribe the cores
-    single = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    saved = {name: os.environ.get(name) for name in single}
-    os.environ.update(single)
-    try:
-        return SubprocVecEnv(fns, start_method="spawn")  # the workers start here and inherit the environment
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
-def _make_env(joint: bool, task: str, run_seed: int, rank: int, own_process: bool, kwargs: dict[str, Any]) -> gym.Env:
-    if joint:
-        from envs.joint_env import JointControlEnv
-
-        env: gym.Env = JointControlEnv(task, run_seed=run_seed, rank=rank, **kwargs)
-    else:
-        env = PlanEnv(task, run_seed=run_seed, rank=rank, **kwargs)
-    if hasattr(env, "warm_up"):
-        env.warm_up()  # everything a first episode creates exists before any fast_resets() freeze
-    elif hasattr(env, "build"):
-        env.build()
-    if own_process:  # a worker process that only steps this env
-        import torch
-
-        from envs.tasks import fast_resets
-
-        torch.set_num_threads(1)  # one core per env: PointNet and the text encoder must not fight the other env
-        global _WORKER_FREEZE  # held for the worker's life: a dropped context manager's generator
-        # is collected at once and its ``finally`` unfreezes (the workers ran unfrozen at 0.7 s per plan, not 0.35)
-        _WORKER_FREEZE = fast_resets()
-        _WORKER_FREEZE.__enter__()  # the imports and the simulator stay out of every reset's gc.collect()
-    return env
-
-
-_WORKER_FREEZE: Any = None
-"""The ``fast_resets`` block a vector-env worker stays in (see ``_make_env``)."""

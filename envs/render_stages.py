@@ -25,8 +25,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import sapien
 
+from envs.executor import PlanExecutor
 from envs.render_probe import require_rendering
+from envs.tasks import TASK_ENV_IDS, make_env, task_class
+from envs.tasks.grasp_probe import PROBE_OBJECTS, make_probe_env
+from prl import labels
+from prl.constants import SENSOR_NAMES
+from prl.label_recovery import CONTACT_THRESHOLD_N
+from prl.plb import PLBError, parse_plan
+from prl.stages import STAGES
 
 IMAGE_SIZE = (512, 384)
 """(width, height) of each stage picture, pixels."""
@@ -68,15 +77,13 @@ class StagePictures:
     sheet: Path
     """The contact sheet ``stages.png``."""
     result: Any
-    """The :class:`envs.executor.EpisodeResult` of the episode."""
+    """The :class:`envs.execution.EpisodeResult` of the episode."""
     stage_frames: dict[str, int] = field(default_factory=dict)
     """Physics frame index each picture was taken after (-1 for the initial scene)."""
 
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> Any:
     """A ``sapien.Pose`` for a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target`` (Z up)."""
-    import sapien
-
     up = np.array([0.0, 0.0, 1.0])
     eye = np.asarray(eye, dtype=np.float64)
     forward = np.asarray(target, dtype=np.float64) - eye
@@ -120,7 +127,7 @@ def take_picture(env: Any, camera: Any, view: View | None = None) -> np.ndarray:
 
 
 def _save_png(image: np.ndarray, path: Path) -> None:
-    from PIL import Image
+    from PIL import Image  # optional: only rendering needs Pillow
 
     Image.fromarray(image).save(path)
 
@@ -128,10 +135,10 @@ def _save_png(image: np.ndarray, path: Path) -> None:
 def contact_sheet(images: list[np.ndarray], titles: list[str], path: Path, columns: int = 4,
                   suptitle: str = "") -> Path:
     """Save a grid of ``images`` titled ``titles`` to ``path`` (PNG) and return ``path``."""
-    import matplotlib
+    import matplotlib  # heavy: only pictures need matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    matplotlib.use("Agg")  # headless; set before pyplot is imported
+    import matplotlib.pyplot as plt  # heavy: as above
 
     rows = (len(images) + columns - 1) // columns
     h, w = images[0].shape[:2]
@@ -155,9 +162,6 @@ def render_stage_pictures(task: str, plan: Any, seed: int, out_dir: str | os.Pat
                           view: str | View = "workspace", size: tuple[int, int] = IMAGE_SIZE) -> StagePictures:
     """Execute ``plan`` on ``task`` with scene ``seed`` and save a picture of each stage end to ``out_dir``."""
     require_rendering("stage pictures")
-    import envs.agents  # noqa: F401  (registers prl_hand)
-    from envs.executor import PlanExecutor
-    from envs.tasks import make_env
 
     view = VIEWS[view] if isinstance(view, str) else view
     out = Path(out_dir)
@@ -219,12 +223,6 @@ def render_grasp_patterns(out_dir: str | os.PathLike, seed: int = 0) -> Path:
     of ``envs/tasks/grasp_probe.py``) at the end of the lift, titled with the sensors in contact and the
     pattern Eq 6 reads from them; saved as the contact sheet ``grasp_patterns.png`` in ``out_dir``."""
     require_rendering("grasp pattern pictures")
-    import envs.agents  # noqa: F401  (registers prl_hand)
-    from envs.executor import STAGES, PlanExecutor
-    from envs.tasks.grasp_probe import PROBE_OBJECTS, make_probe_env
-    from prl import labels
-    from prl.constants import SENSOR_NAMES
-    from prl.label_recovery import CONTACT_THRESHOLD_N
 
     images, titles = [], []
     for kind, spec in PROBE_OBJECTS.items():
@@ -258,24 +256,26 @@ def render_grasp_patterns(out_dir: str | os.PathLike, seed: int = 0) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from envs.executor import _parse_plan
-
     parser = argparse.ArgumentParser(description="Render a picture of each plan-executor stage to PNG.")
-    parser.add_argument("--task", default="hammer")
-    parser.add_argument("--plan", type=_parse_plan, default=[0, 3, 2, 0, 0, 1], help="e.g. 0,3,2,0,0,1")
+    parser.add_argument("--task", default="hammer", choices=sorted(TASK_ENV_IDS))
+    parser.add_argument("--plan", default=None, help="e.g. 0,3,2,0,0,1 (default: the task's expert plan)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="outputs/stages", help="output folder")
     parser.add_argument("--view", choices=sorted(VIEWS), default="workspace")
     parser.add_argument("--grasp-patterns", action="store_true",
                         help="instead: one picture per grasp pattern on its reference object (grasp_patterns.png)")
     args = parser.parse_args(argv)
+    try:
+        plan = parse_plan(args.plan) if args.plan is not None else task_class(args.task).expert_plan
+    except PLBError as exc:
+        parser.error(f"--plan: {exc}")
     os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp/prl-runtime")
     os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
     if args.grasp_patterns:
         print(render_grasp_patterns(args.out, args.seed))
         return
 
-    pictures = render_stage_pictures(args.task, args.plan, args.seed, args.out, view=args.view)
+    pictures = render_stage_pictures(args.task, plan, args.seed, args.out, view=args.view)
     for path in [*pictures.paths, pictures.sheet]:
         print(path)
     result = pictures.result

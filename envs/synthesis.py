@@ -30,11 +30,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
-from envs.executor import FAULTS
+from envs.execution import ExecutorConfig
+from envs.executor import PlanExecutor
+from envs.tasks import fast_resets, make_env, task_class
 from envs.trials import error_text
 from prl.constants import EPISODE_FRAMES
+from prl.demo import from_episode, load_demo, save_demo
 from prl.plb import load_plb
+from prl.stages import FAULTS
 
 _log = logging.getLogger(__name__)
 
@@ -118,8 +123,6 @@ def _append(shard_dir: Path, row: dict) -> None:
 
 def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     """Run (or resume) one shard until it holds ``spec.n_success`` demos."""
-    from prl.demo import from_episode, load_demo, save_demo
-
     spec.dir.mkdir(parents=True, exist_ok=True)
     path = spec.dir / "attempts.jsonl"
     rows = read_attempts(spec.dir)
@@ -131,15 +134,12 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     successes = sum(r["success"] for r in rows)
     attempt = len(rows)
     plb = load_plb()
-    from envs.tasks import task_class
 
     measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
     env = executor = None
     cleanup = ExitStack()
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=spec.n_success, initial=successes, desc=f"{spec.task} shard {spec.shard}", unit="demo")
     try:
         while successes < spec.n_success and attempt < spec.max_attempts:
@@ -151,9 +151,6 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
                        "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
-                    from envs.executor import ExecutorConfig, PlanExecutor
-                    from envs.tasks import fast_resets, make_env
-
                     env = make_env(spec.task)
                     cleanup.callback(env.close)
                     cleanup.enter_context(fast_resets())

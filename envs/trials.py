@@ -7,16 +7,22 @@ Every outcome is the task's ``evaluate()`` of the simulated state.
 
 from __future__ import annotations
 
+import argparse
 import logging
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from envs.execution import ExecutorConfig
+from envs.executor import PlanExecutor
+from envs.tasks import TASK_ENV_IDS, fast_resets, make_env, task_class
 from prl.constants import EPISODE_FRAMES
-from prl.plb import load_plb
+from prl.plb import PLBError, load_plb, parse_plan
 
 _log = logging.getLogger(__name__)
 
@@ -38,7 +44,7 @@ class TrialOutcome:
     fail: bool
     """The task's failure flag (tool lost, NaN)."""
     fault: str = ""
-    """The executor's fault if it ended the plan itself (``envs.executor.FAULTS``), else ``""``."""
+    """The executor's fault if it ended the plan itself (``prl.stages.FAULTS``), else ``""``."""
     error: str = ""
     """The exception text if the attempt raised (a bug, a PhysX error): then a failure, and the trials went on."""
 
@@ -65,8 +71,6 @@ def eval_scene_seeds(seed: int, n: int) -> list[int]:
 def plan_set(task: str, kind: str, n: int, seed: int) -> list[tuple[int, ...]]:
     """``n`` plans of a kind: 'expert' (the task's expert plan repeated), 'prior' (sampled from the
     task's PLB prior) or 'uniform' (uniform over the Representation Space), seeded by ``seed``."""
-    from envs.tasks import task_class
-
     plb = load_plb()
     rng = np.random.default_rng(seed)
     if kind == "expert":
@@ -92,9 +96,6 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
     raises (a bug, a PhysX error) is a failed outcome with the error text in ``error``, logged as a
     warning; the environment is rebuilt and the trials go on.
     """
-    from envs.executor import ExecutorConfig, PlanExecutor
-    from envs.tasks import fast_resets, make_env, task_class
-
     key = task_class(task).measure_key
     env = executor = None
     out: list[TrialOutcome] = []
@@ -128,9 +129,6 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
 
 def error_text(exc: BaseException) -> str:
     """``Type: message (file:line)`` of an exception, for attempt logs."""
-    import traceback
-    from pathlib import Path
-
     frames = traceback.extract_tb(exc.__traceback__)
     where = f" ({Path(frames[-1].filename).name}:{frames[-1].lineno})" if frames else ""
     return f"{type(exc).__name__}: {exc}{where}"
@@ -164,26 +162,39 @@ def success_rate(outcomes: Sequence[TrialOutcome]) -> float:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m envs.trials --task sweep --scenes 50``: the pipeline's trials of one task, without MLflow."""
-    import argparse
+    """``python -m envs.trials --task sweep --scenes 50``: success rates of a task's plans, without MLflow.
 
-    import envs  # noqa: F401  (registers the tasks)
-
-    parser = argparse.ArgumentParser(description="Success rates of the expert, prior and uniform plans of a task "
-                                                 "on the same scenes as the pipeline's trials stage.")
-    parser.add_argument("--task", required=True)
-    parser.add_argument("--scenes", type=int, default=50)
+    By default the pipeline's trials (the same scenes as its trials stage): the task's expert plan, plans
+    sampled from its prior and uniform plans; ``--plan`` runs one given plan on the trial scenes instead.
+    Each line reports the task's own measure (``measure_key``)."""
+    parser = argparse.ArgumentParser(description="Success rates of a task's plans on the pipeline's trial scenes "
+                                                 "(expert, prior-sampled and uniform plans, or one --plan).")
+    parser.add_argument("--task", required=True, choices=sorted(TASK_ENV_IDS))
+    parser.add_argument("--scenes", type=int, default=50, help="randomised scenes per plan kind")
     parser.add_argument("--seed", type=int, default=0, help="the run seed (as the pipeline's --seed)")
+    parser.add_argument("--kinds", default=",".join(PLAN_KINDS), help=f"plan kinds, any of {','.join(PLAN_KINDS)}")
+    parser.add_argument("--plan", default=None, help="run this plan (e.g. 0,3,2,0,0,1) instead of the plan kinds")
+    parser.add_argument("--randomization", type=float, default=1.0, help="scale of the randomisation ranges")
     args = parser.parse_args(argv)
-    from envs.tasks import task_class
-
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in PLAN_KINDS]
+    if unknown or not kinds:
+        parser.error(f"--kinds: unknown plan kind(s) {unknown or kinds}; known: {', '.join(PLAN_KINDS)}")
+    if args.scenes < 1:
+        parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    try:
+        plan = parse_plan(args.plan) if args.plan is not None else None
+    except PLBError as exc:
+        parser.error(f"--plan: {exc}")
     key = task_class(args.task).measure_key
-    for kind in PLAN_KINDS:
-        seed = kind_seed(args.seed, kind)
-        outs = run_trials(args.task, plan_set(args.task, kind, args.scenes, seed), trial_scene_seeds(seed, args.scenes),
+    runs = [("plan " + ",".join(map(str, plan.tolist())), args.seed)] if plan is not None else \
+        [(kind, kind_seed(args.seed, kind)) for kind in kinds]
+    for label, seed in runs:
+        plans = [tuple(plan.tolist())] * args.scenes if plan is not None else plan_set(args.task, label, args.scenes, seed)
+        outs = run_trials(args.task, plans, trial_scene_seeds(seed, args.scenes), randomization=args.randomization,
                           progress=False)
         k = sum(o.success for o in outs)
-        print(f"{args.task} {kind:<8} {k}/{len(outs)} = {k / len(outs):.2f}; mean {key} "
+        print(f"{args.task} {label:<8} {k}/{len(outs)} = {k / len(outs):.2f}; mean {key} "
               f"{np.mean([o.measure for o in outs]):.2f}; errors {sum(bool(o.error) for o in outs)}", flush=True)
 
 

@@ -1,6 +1,6 @@
-"""The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset ... --pointnet ...``.
+"""The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset-root D --pointnet-path P``.
 
-Points = tasks x variants x demonstration steps x seeds (``flows.ln.LNPoint``: physics-guided A2C for each
+Points = tasks x variants x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
 K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
 point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
 run is found again by a key over the sweep's settings (not its list of points), and points that already
@@ -15,16 +15,21 @@ from the summaries of one or more sweeps' output directories.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from prefect import flow
 
-from flows.ln import VARIANTS, LNPoint, LNSetup, ln_point, ln_reevaluate, write_demonstrations
+from flows.train_ln import LNPoint, LNSetup, ln_point, ln_reevaluate, write_demonstrations
 from prl import tracking
+from prl.cli import add_config_arguments, config_overrides
+from prl.config import AblationConfig, LNConfig, make_ablation_config
+from prl.plots import plot_learning_curves
 
 PAPER_DEMO_STEPS: tuple[int, ...] = (0, 320, 640, 1280, 2560)
 """The paper's demonstration-step ablation."""
@@ -45,11 +50,26 @@ def sweep_points(tasks: list[str], variants: list[str], demo_steps: list[int], s
 
 def finished_points(parent_run_id: str) -> set[str]:
     """Names of the points that have a FINISHED child run under ``parent_run_id``."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent_run_id}' and "
                                             f"attributes.status = 'FINISHED'", output_format="list")
     return {r.data.tags.get("ln_point", "") for r in runs} - {""}
+
+
+def sweep_settings(cfg: AblationConfig) -> dict[str, Any]:
+    """What makes two sweeps the same (their points aside): the parent run's params, hashed into its key. The LN
+    settings beyond the first keys enter only where they differ from the paper's, so that earlier sweeps
+    keep their key."""
+    first = ("timesteps", "pretrain_epochs", "steps_per_update")
+    paper = LNConfig()
+    changed = {f"ln.{f.name}": getattr(cfg.ln, f.name) for f in dataclasses.fields(LNConfig)
+               if f.name not in first and f.name not in cfg.LN_SET_PER_POINT
+               and getattr(cfg.ln, f.name) != getattr(paper, f.name)}
+    return {"dataset_root": str(cfg.dataset_root.resolve()), "pointnet": str(cfg.pointnet_path.resolve()),
+            "timesteps": cfg.ln.timesteps, "eval_scenes": cfg.eval_scenes, "eval_seed": cfg.eval_seed,
+            "pretrain_epochs": cfg.ln.pretrain_epochs, "n_points": cfg.n_points,
+            "steps_per_update": cfg.ln.steps_per_update, **changed}
 
 
 def _sweep_key(settings: dict[str, Any]) -> str:
@@ -58,7 +78,7 @@ def _sweep_key(settings: dict[str, Any]) -> str:
 
 def _parent(key: str, name: str, settings: dict[str, Any]) -> Any:
     """The sweep's parent run: the one tagged with ``key`` if it exists (resume), else a new one."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     found = mlflow.search_runs(filter_string=f"tags.sweep_key = '{key}'", output_format="list",
                                order_by=["attributes.start_time DESC"], max_results=1)
@@ -72,24 +92,24 @@ def _parent(key: str, name: str, settings: dict[str, Any]) -> Any:
 
 
 @flow(name="prl-ln-ablation", log_prints=True)
-def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, tasks: list[str] | None = None,
-             variants: list[str] | None = None, demo_steps: list[int] | None = None, seeds: list[int] | None = None,
-             timesteps: int = 3200, eval_scenes: int = 50, eval_seed: int = 0, workers: int = 2,
-             dask_address: str | None = None, output_dir: str = "outputs/ablation", n_points: int = 512,
-             pretrain_epochs: int = 10, steps_per_update: int = 64, reevaluate: bool = False) -> dict[str, Any]:
-    """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into ``output_dir``."""
-    import mlflow
+def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into its ``output_dir``.
+
+    ``overrides`` are ``prl.config.AblationConfig`` fields, the LN's nested (the command line's flags by their
+    field names): e.g. ``{"seeds": [0, 1, 2], "demo_steps": [0, 1280], "ln": {"timesteps": 3200}}``.
+    """
+    import mlflow  # heavy: mlflow
 
     from envs.trials import eval_scene_seeds
-    from flows.features import rn_features
+    from flows.compute_features import rn_features
     from flows.synthesize import make_task_runner
-    from prl.export import read_scenes
+    from prl.export_schema import read_scenes
 
-    tasks = list(tasks or ["hammer"])
-    points = sweep_points(tasks, list(variants or VARIANTS), list(demo_steps if demo_steps is not None else [0, 1280]),
-                          list(seeds if seeds is not None else [0, 1, 2]))
-    root = Path(dataset_root)
-    repo_id = repo_id or _repo_id_of(root)
+    cfg = make_ablation_config(dataset_root, pointnet_path, **(overrides or {}))
+    tasks = list(cfg.tasks)
+    points = sweep_points(tasks, list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))
+    root = cfg.dataset_root
+    repo_id = cfg.repo_id or _repo_id_of(root)
     scenes = read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
     for p in points:  # K beyond the demonstrations available (one per episode): an error before any work
         available = sum(s["task"] == p.task for s in scenes)
@@ -98,18 +118,18 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
         if p.demo_steps > available:
             raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
                              f"{str(root)!r}; synthesise more or sweep fewer steps")
-    out = Path(output_dir)
-    settings = {"dataset_root": str(root.resolve()), "pointnet": str(Path(pointnet_path).resolve()),
-                "timesteps": timesteps, "eval_scenes": eval_scenes, "eval_seed": eval_seed,
-                "pretrain_epochs": pretrain_epochs, "n_points": n_points, "steps_per_update": steps_per_update}
+    out = cfg.output_dir
+    settings = sweep_settings(cfg)
     key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or variants resumes
-    setup = LNSetup(timesteps=timesteps, demo_dir=out / "demos", pointnet_path=Path(pointnet_path), out_dir=out / "points",
-                    eval_seeds=tuple(eval_scene_seeds(eval_seed, eval_scenes)), n_points=n_points, n_envs=1,
-                    steps_per_update=steps_per_update, pretrain_epochs=pretrain_epochs, progress=False)
+    setup = LNSetup(demo_dir=out / "demos", pointnet_path=cfg.pointnet_path, out_dir=out / "points",
+                    eval_seeds=tuple(eval_scene_seeds(cfg.eval_seed, cfg.eval_scenes)), ln=cfg.ln,
+                    n_points=cfg.n_points, progress=False)
+    workers, dask_address = cfg.workers, cfg.dask_address
     tracking.configure("prl")
     with _parent(key, f"ln-ablation-{key}", settings) as parent:
         if not all((setup.demo_dir / f"demos-{t}.npz").is_file() for t in tasks):
-            counts = write_demonstrations(setup.demo_dir, tasks, rn_features(root, repo_id, Path(pointnet_path), n_points))
+            counts = write_demonstrations(setup.demo_dir, tasks, rn_features(root, repo_id, cfg.pointnet_path,
+                                                                             cfg.n_points))
             print("demonstrations per task: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
         done = finished_points(parent.info.run_id)
         summaries = {p.name: json.loads((setup.out_dir / f"{p.name}.json").read_text()) for p in points
@@ -117,8 +137,8 @@ def ablation(dataset_root: str, pointnet_path: str, repo_id: str | None = None, 
         todo = [p for p in points if p.name not in summaries]
         print(f"sweep {key}: {len(points)} points, {len(summaries)} already finished, {len(todo)} to run "
               f"(MLflow parent {parent.info.run_id})")
-        if reevaluate and summaries:
-            print(f"re-evaluating {len(summaries)} finished points' final policies on {eval_scenes} scenes")
+        if cfg.reevaluate and summaries:
+            print(f"re-evaluating {len(summaries)} finished points' final policies on {cfg.eval_scenes} scenes")
             summaries.update(_reevaluate(list(summaries.values()), setup, workers, dask_address, make_task_runner))
         if todo:
             summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner))
@@ -136,7 +156,7 @@ def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, 
     @flow(name="prl-ln-points", task_runner=make_task_runner(workers, dask_address))
     def _points(todo: list[LNPoint]) -> list[dict[str, Any]]:
         futures = [ln_point.submit(p, setup, parent_id) for p in todo]
-        _watch(parent_id, {p.name for p in todo}, len(todo) * setup.timesteps, futures)
+        _watch(parent_id, {p.name for p in todo}, len(todo) * setup.ln.timesteps, futures)
         return [f.result() for f in futures]
 
     return {s["name"]: s for s in _points(todo)}
@@ -153,9 +173,7 @@ def _reevaluate(finished: list[dict[str, Any]], setup: LNSetup, workers: int, da
 
 def _watch(parent_id: str, names: set[str], total: int, futures: list, period_s: float = 10.0) -> None:
     """A progress bar over the sweep's timesteps, read from the points' ``ln/timesteps`` metric in MLflow."""
-    import time
-
-    import mlflow
+    import mlflow  # heavy: mlflow
     from tqdm.auto import tqdm
 
     with tqdm(total=total, desc="LN sweep", unit="timestep") as bar:
@@ -176,8 +194,6 @@ def _repo_id_of(root: Path) -> str:
 def draw_fig8(summaries: dict[str, Any], out: Path) -> list[Path]:
     """Fig 8 from the points' curves: per task, physics-guided (largest K, and K = 0) vs BC vs joint control,
     and the demonstration-step curves; each against timesteps and against physics frames."""
-    from prl.plots import plot_learning_curves
-
     figs = []
     by_task: dict[str, dict[str, list]] = {}
     for s in summaries.values():
@@ -208,51 +224,44 @@ def read_summaries(sweep_dirs: list[str]) -> dict[str, Any]:
     return summaries
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", help="exported LeRobot dataset root (the pipeline's datasets/...)")
-    parser.add_argument("--pointnet", help="the PointNet checkpoint the RN used (models/pointnet-*.pt)")
-    parser.add_argument("--repo-id", default=None)
-    parser.add_argument("--tasks", default="hammer")
-    parser.add_argument("--variants", default=",".join(VARIANTS))
-    parser.add_argument("--demo-steps", default="0,1280", help=f"comma-separated K (paper: {PAPER_DEMO_STEPS})")
-    parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--timesteps", type=int, default=3200)
-    parser.add_argument("--eval-scenes", type=int, default=50)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--dask-address", default=None)
-    parser.add_argument("--output-dir", default="outputs/ablation")
+CLI_EXCLUDE: tuple[str, ...] = tuple(f"ln.{n}" for n in AblationConfig.LN_SET_PER_POINT)
+"""``AblationConfig`` fields without a generated flag: the LN settings each sweep point sets itself."""
+
+
+def cli_parser() -> argparse.ArgumentParser:
+    """The sweep's command line: one flag per ``AblationConfig`` field (``prl.cli``), and ``--draw-from``."""
+    parser = argparse.ArgumentParser(prog="python -m flows.ablation", description=__doc__.splitlines()[0],
+                                     epilog=f"The paper's demonstration-step ablation: --demo-steps "
+                                            f"{','.join(map(str, PAPER_DEMO_STEPS))}.")
+    add_config_arguments(parser, AblationConfig, exclude=CLI_EXCLUDE)
     parser.add_argument("--draw-from", default=None, metavar="DIR,DIR",
                         help="only redraw Fig 8 into --output-dir from these sweeps' output directories (no run)")
-    parser.add_argument("--reevaluate", action="store_true",
-                        help="evaluate the finished points' final policies again (after a task's success criterion changed)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = cli_parser()
     args = parser.parse_args(argv)
-
-    def ints(text: str, what: str) -> list[int]:
-        try:
-            return [int(v) for v in text.split(",") if v.strip()]
-        except ValueError:
-            parser.error(f"--{what} must be comma-separated integers, got {text!r}")
-
+    overrides = config_overrides(args, AblationConfig, exclude=CLI_EXCLUDE)
     if args.draw_from:
         try:
-            figs = draw_fig8(read_summaries(args.draw_from.split(",")), Path(args.output_dir))
+            figs = draw_fig8(read_summaries(args.draw_from.split(",")),
+                             Path(overrides.get("output_dir", AblationConfig.output_dir)))
         except FileNotFoundError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         print("\n".join(str(f) for f in figs))
         return 0
-    if not args.dataset or not args.pointnet:
-        parser.error("--dataset and --pointnet are required (unless --draw-from)")
-    try:
-        sweep_points(args.tasks.split(","), args.variants.split(","), ints(args.demo_steps, "demo-steps"),
-                     ints(args.seeds, "seeds"))
+    dataset_root, pointnet_path = overrides.pop("dataset_root", None), overrides.pop("pointnet_path", None)
+    if not dataset_root or not pointnet_path:
+        parser.error("--dataset-root and --pointnet-path are required (unless --draw-from)")
+    try:  # before any flow run or MLflow run starts
+        cfg = make_ablation_config(dataset_root, pointnet_path, **overrides)
+        sweep_points(list(cfg.tasks), list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    ablation(args.dataset, args.pointnet, args.repo_id, args.tasks.split(","), args.variants.split(","),
-             ints(args.demo_steps, "demo-steps"), ints(args.seeds, "seeds"), args.timesteps, args.eval_scenes,
-             workers=args.workers, dask_address=args.dask_address, output_dir=args.output_dir, reevaluate=args.reevaluate)
+    ablation(dataset_root, pointnet_path, overrides)
     return 0
 
 

@@ -3,11 +3,12 @@
 The pipeline's ``rn-eval`` stage runs its model on one fixed range of scene seeds; this flow runs a saved
 checkpoint on another one (a confirmation set, more scenes, wider ranges) with the same policy code::
 
-    python -m flows.evaluate_rn --rn /tmp/rnrun/models/rn-seed0.pt --first-seed 10500000 --scenes 50
+    python -m flows.evaluate_rn --rn-path /tmp/rnrun/models/rn-seed0.pt --first-seed 10500000 --scenes 50
 
 The PointNet checkpoint is found beside the RN (``pointnet-*.pt`` whose SHA-256 the RN recorded), or given
-with ``--pointnet``. Each plan kind (the RN decodings and the 'prior' and 'expert' baselines) is logged as
-``<task>/<split>/<kind>_success_rate`` with its 95% Wilson interval, plus the per-scene outcomes.
+with ``--pointnet-path`` (each flag is the flow's parameter of that name). Each plan kind (the RN decodings
+and the 'prior' and 'expert' baselines) is logged as ``<task>/<split>/<kind>_success_rate`` with its 95%
+Wilson interval, plus the per-scene outcomes.
 """
 
 from __future__ import annotations
@@ -45,10 +46,10 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
     """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and two baselines: a
     plan sampled from the task prior the demos were drawn from ('prior') and the task's hand-written
     expert plan, the same on every scene ('expert'); the outcomes of each, keyed by decoding or baseline."""
-    from envs.trials import plan_set, run_policy, run_trials
+    from envs.trials import plan_set, run_policy, run_trials  # heavy: loads the simulator
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
-    from prl.rn import load_rn
+    from prl.rn_checkpoint import load_rn
     from prl.rn_policy import rn_policy
 
     model = load_rn(rn_path)
@@ -70,7 +71,7 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
 def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) -> RNEval:
     """Execute the RN's plans (each decoding) and the baselines on ``cfg.rn_eval_scenes`` unseen scenes per task,
     once with the training ranges and once with them scaled by ``cfg.wide_randomization``; log each."""
-    from envs.trials import eval_scene_seeds
+    from envs.trials import eval_scene_seeds  # heavy: loads the simulator
 
     seeds = eval_scene_seeds(cfg.seed, cfg.rn_eval_scenes)
     rates: dict[str, dict[str, float]] = {}
@@ -88,7 +89,7 @@ def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) ->
 def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]:
     """Log one evaluation's outcomes (``evaluate_in_sim``'s result) to the active MLflow run and print them;
     return the success rate per plan kind."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     from prl.stats import format_rate, wilson_interval
 
@@ -112,7 +113,7 @@ def find_pointnet(rn_path: Path, pointnet_path: Path | None) -> Path:
     """``pointnet_path`` if given (checked against the SHA-256 the RN recorded, if any), else the
     ``pointnet-*.pt`` beside ``rn_path`` with that SHA-256; a clear error when the RN records none, no file
     beside it matches, or the given one is another PointNet."""
-    from prl.rn import load_rn
+    from prl.rn_checkpoint import load_rn  # heavy: torch
     from prl.version import file_digest
 
     model = load_rn(rn_path)
@@ -121,12 +122,12 @@ def find_pointnet(rn_path: Path, pointnet_path: Path | None) -> Path:
         return Path(pointnet_path)
     want = model.pointnet_sha256
     if want is None:
-        raise ValueError(f"{rn_path} does not record its PointNet; pass --pointnet")
+        raise ValueError(f"{rn_path} does not record its PointNet; pass --pointnet-path")
     for candidate in sorted(Path(rn_path).parent.glob("pointnet-*.pt")):
         if file_digest(candidate) == want:
             return candidate
     raise FileNotFoundError(f"no pointnet-*.pt beside {rn_path} has the sha256 the RN was trained with "
-                            f"({want[:12]}); pass --pointnet")
+                            f"({want[:12]}); pass --pointnet-path")
 
 
 def check_eval_args(task: str, scenes: int, first_seed: int, randomization: float, decodings: Sequence[str]) -> None:
@@ -154,7 +155,7 @@ def evaluate_rn(rn_path: str, pointnet_path: str | None = None, task: str = "ham
     """Run the RN at ``rn_path`` (decoded each way of ``decodings``) and the two baselines on the scenes of
     seeds ``first_seed .. first_seed + scenes - 1`` with ranges scaled by ``randomization``; one MLflow run
     named ``rn-eval``. Returns the success rate per plan kind."""
-    from prl.pointnet import load_pointnet
+    from prl.pointnet import load_pointnet  # heavy: trimesh
 
     check_eval_args(task, scenes, first_seed, randomization, decodings)
     rn, pn = Path(rn_path), find_pointnet(Path(rn_path), None if pointnet_path is None else Path(pointnet_path))
@@ -171,27 +172,35 @@ def evaluate_rn(rn_path: str, pointnet_path: str | None = None, task: str = "ham
     return rates
 
 
-def main(argv: list[str] | None = None) -> int:
+def cli_parser() -> argparse.ArgumentParser:
+    """One flag per parameter of the flow ``evaluate_rn``, named like it (``--rn-path`` for ``rn_path``)."""
     parser = argparse.ArgumentParser(prog="python -m flows.evaluate_rn", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rn", required=True, help="RN checkpoint (the pipeline's <output-dir>/models/rn-seed<N>.pt)")
-    parser.add_argument("--pointnet", default=None, help="PointNet checkpoint (default: the one beside the RN)")
+    parser.add_argument("--rn-path", required=True,
+                        help="RN checkpoint (the pipeline's <output-dir>/models/rn-seed<N>.pt)")
+    parser.add_argument("--pointnet-path", default=None, help="PointNet checkpoint (default: the one beside the RN)")
     parser.add_argument("--task", default="hammer")
     parser.add_argument("--first-seed", type=int, default=10_500_000,
                         help="first scene seed (the pipeline's own rn-eval uses 10,000,000 + 1,000 x seed)")
     parser.add_argument("--scenes", type=int, default=50)
     parser.add_argument("--randomization", type=float, default=1.0, help="scale of the randomisation ranges")
     parser.add_argument("--decodings", default=",".join(DECODINGS), help="comma-separated RN decodings")
-    parser.add_argument("--frames", type=int, default=PipelineConfig.episode_frames)
-    args = parser.parse_args(argv)
+    parser.add_argument("--frames", type=int, default=PipelineConfig.episode_frames,
+                        help="physics frames per plan episode")
+    parser.add_argument("--prior-seed", type=int, default=31, help="seed of the prior-sampled baseline plans")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = cli_parser().parse_args(argv)
     decodings = tuple(d for d in args.decodings.split(",") if d)
     try:
         check_eval_args(args.task, args.scenes, args.first_seed, args.randomization, decodings)
-        find_pointnet(Path(args.rn), None if args.pointnet is None else Path(args.pointnet))
+        find_pointnet(Path(args.rn_path), None if args.pointnet_path is None else Path(args.pointnet_path))
     except (ValueError, FileNotFoundError, KeyError) as exc:  # before any flow run or MLflow run starts
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    evaluate_rn(args.rn, args.pointnet, args.task, args.first_seed, args.scenes, args.randomization,
-                decodings, args.frames)
+    evaluate_rn(args.rn_path, args.pointnet_path, args.task, args.first_seed, args.scenes, args.randomization,
+                decodings, args.frames, args.prior_seed)
     return 0
 
 

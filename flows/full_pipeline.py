@@ -1,4 +1,4 @@
-"""The PRL pipeline as a Prefect flow: ``python -m flows.full_pipeline [--profile paper] ...``.
+"""The PRL pipeline as a Prefect flow: ``python -m flows.full_pipeline [--profile paper] [--<field> value] ...``.
 
 The DAG, one module per stage under ``flows/``, each a Prefect task or subflow taking the previous stages'
 results and logging its own MLflow child run under the run's parent run::
@@ -17,24 +17,24 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
 from prefect import flow
 
-from flows.assets import assets_stage
+from flows.check_assets import assets_stage
+from flows.compute_features import features_stage
 from flows.evaluate_rn import rn_eval_stage
-from flows.export import export_stage
-from flows.features import features_stage
-from flows.labels import labels_stage
-from flows.ln import ln_stage
+from flows.export_dataset import export_stage
 from flows.plan_trials import trials_stage
-from flows.pointnet import pointnet_stage
+from flows.recover_labels import labels_stage
 from flows.stage_pictures import pictures_stage
 from flows.synthesize import synthesis_stage
+from flows.train_ln import ln_stage
+from flows.train_pointnet import pointnet_stage
 from flows.train_rn import rn_train_stage
 from prl import tracking
-from prl.config import ConfigError, PipelineConfig, make_config
+from prl.cli import add_config_arguments, config_overrides
+from prl.config import PROFILES, ConfigError, PipelineConfig, make_config
 from prl.version import code_version, git_commit
 
 
@@ -42,20 +42,16 @@ from prl.version import code_version, git_commit
 def full_pipeline(profile: str = "quick", overrides: dict[str, Any] | None = None) -> dict[str, dict[str, float]]:
     """Run every stage that exists, tracked in MLflow; return success rates per task and plan kind.
 
-    ``overrides`` are ``PipelineConfig`` fields (e.g. ``{"tasks": ["hammer"], "demos_per_task": 8}``).
+    ``overrides`` are ``PipelineConfig`` fields over the profile's, the LN's nested (the command line's flags
+    by their field names): e.g. ``{"tasks": ["hammer"], "demos_per_task": 8, "ln": {"timesteps": 64}}``.
     """
-    clean = dict(overrides or {})
-    if "tasks" in clean and clean["tasks"] is not None:
-        clean["tasks"] = tuple(clean["tasks"])
-    if clean.get("output_dir"):
-        clean["output_dir"] = Path(clean["output_dir"])
-    return run_pipeline(make_config(profile, **clean))
+    return run_pipeline(make_config(profile, **(overrides or {})))
 
 
 def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     """The flow body (called inside the Prefect flow): the stages in DAG order under one MLflow parent run."""
     if cfg.render:
-        from envs.render_probe import require_rendering
+        from envs.render_probe import require_rendering  # heavy: loads the simulator
 
         require_rendering("stage pictures (pass --no-render to skip them)")
     import envs  # noqa: F401  (registers the hand agent and the tasks)
@@ -89,44 +85,25 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     return results
 
 
+CLI_EXCLUDE: tuple[str, ...] = ("profile", *(f"ln.{n}" for n in PipelineConfig.LN_SET_PER_POINT))
+"""``PipelineConfig`` fields without a generated flag: the profile (``--profile``, written by hand) and the LN
+settings each LN point sets itself."""
+
+
+def cli_parser() -> argparse.ArgumentParser:
+    """The pipeline's command line: ``--profile`` and one flag per ``PipelineConfig`` field (``prl.cli``)."""
+    parser = argparse.ArgumentParser(prog="python -m flows.full_pipeline", description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", default="quick", choices=list(PROFILES),
+                        help="named preset (default: quick); the flags below override its settings")
+    add_config_arguments(parser, PipelineConfig, exclude=CLI_EXCLUDE)
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--profile", default="quick", help="quick (default) or paper")
-    parser.add_argument("--tasks", default=None, help="comma-separated tasks, e.g. hammer")
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--scenes", type=int, default=None, help="randomised scenes per plan kind")
-    parser.add_argument("--frames", type=int, default=None, help="physics frames per plan episode")
-    parser.add_argument("--demos-per-task", type=int, default=None, help="demos kept per task by synthesis")
-    parser.add_argument("--shards", type=int, default=None, help="synthesis shards per task")
-    parser.add_argument("--workers", type=int, default=None, help="Dask local-cluster worker processes")
-    parser.add_argument("--dask-address", default=None, help="use this Dask scheduler instead of a local cluster")
-    parser.add_argument("--no-render", action="store_true", help="skip stage pictures")
-    parser.add_argument("--skip-rn", action="store_true", help="stop after the dataset export (no PointNet/RN)")
-    parser.add_argument("--rn-epochs", type=int, default=None, help="RN training epochs (paper: 200)")
-    parser.add_argument("--pn-epochs", type=int, default=None, help="PointNet pre-training epochs")
-    parser.add_argument("--pn-shapes", type=int, default=None, help="synthetic shapes for PointNet pre-training")
-    parser.add_argument("--rn-eval-scenes", type=int, default=None,
-                        help="unseen scenes per RN evaluation split (the LN is evaluated on the same)")
-    parser.add_argument("--skip-ln", action="store_true", help="stop after the RN evaluation (no LN)")
-    parser.add_argument("--ln-timesteps", type=int, default=None, help="RL timesteps per LN run (paper: 3200)")
-    parser.add_argument("--ln-demo-steps", type=int, default=None,
-                        help="demonstrations the LN is pre-trained on (paper: 1280; 0: pure RL)")
-    parser.add_argument("--ln-envs", type=int, default=None, help="plan environments stepped in parallel by the LN")
-    parser.add_argument("--output-dir", default=None)
-    args = parser.parse_args(argv)
-    overrides = {
-        "tasks": [t.strip() for t in args.tasks.split(",")] if args.tasks else None, "seed": args.seed,
-        "eval_scenes": args.scenes, "episode_frames": args.frames, "demos_per_task": args.demos_per_task,
-        "n_shards": args.shards, "workers": args.workers, "dask_address": args.dask_address,
-        "render": False if args.no_render else None, "output_dir": args.output_dir,
-        "train_rn": False if args.skip_rn else None, "rn_epochs": args.rn_epochs, "rn_eval_scenes": args.rn_eval_scenes,
-        "pn_epochs": args.pn_epochs, "pn_shapes": args.pn_shapes, "train_ln": False if args.skip_ln else None,
-        "ln_timesteps": args.ln_timesteps, "ln_demo_steps": args.ln_demo_steps, "ln_envs": args.ln_envs,
-    }
-    overrides = {k: v for k, v in overrides.items() if v is not None}
+    args = cli_parser().parse_args(argv)
+    overrides = config_overrides(args, PipelineConfig, exclude=CLI_EXCLUDE)
     try:  # validate before any work starts (and before Prefect spins up)
-        make_config(args.profile, **{**overrides, "tasks": tuple(overrides.get("tasks", ())) or None,
-                                     "output_dir": Path(args.output_dir) if args.output_dir else None})
+        make_config(args.profile, **overrides)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -11,7 +11,7 @@ from prefect import task
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
 
 from envs.trials import TrialOutcome
-from flows.assets import Assets
+from flows.check_assets import Assets
 from prl import tracking
 from prl.config import PipelineConfig
 
@@ -33,7 +33,7 @@ def plan_trials(task_name: str, kind: str, n: int, seed: int, n_frames: int,
 
     ``code_version`` is part of the cache key so a code change re-runs the simulation.
     """
-    from envs.trials import plan_set, run_trials, trial_scene_seeds
+    from envs.trials import plan_set, run_trials, trial_scene_seeds  # heavy: loads the simulator
 
     return run_trials(task_name, plan_set(task_name, kind, n, seed), trial_scene_seeds(seed, n), n_frames=n_frames)
 
@@ -42,7 +42,7 @@ def plan_trials(task_name: str, kind: str, n: int, seed: int, n_frames: int,
 def trials_stage(cfg: PipelineConfig, assets: Assets, task_name: str, out_dir: Path, code_version: str) -> Trials:
     """Run every plan kind of ``envs.trials.PLAN_KINDS`` on ``cfg.eval_scenes`` scenes and log rates, measures,
     per-scene outcomes and a bar chart."""
-    from envs.tasks import task_class
+    from envs.tasks import task_class  # heavy: loads the simulator
     from envs.trials import PLAN_KINDS, kind_seed
 
     with tracking.child_run(f"trials-{task_name}", params={"task": task_name, "scenes": cfg.eval_scenes,
@@ -56,7 +56,7 @@ def trials_stage(cfg: PipelineConfig, assets: Assets, task_name: str, out_dir: P
 
 
 def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, out_dir: Path) -> dict[str, float]:
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     from envs.trials import success_rate
     from prl.plots import plot_trial_rates

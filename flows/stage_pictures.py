@@ -7,14 +7,14 @@ from pathlib import Path
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from flows.assets import Assets
+from flows.check_assets import Assets
 from prl import tracking
 
 
 @task(name="pictures", task_run_name="pictures-{task_name}", cache_policy=NO_CACHE)
 def pictures_stage(assets: Assets, task_name: str, seed: int, out_dir: Path) -> list[Path]:
     """Render PNGs of each stage of the expert plan on the scene of ``seed`` into ``out_dir`` and log them."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     from envs.render_stages import render_stages
     from envs.tasks import task_class

@@ -16,6 +16,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect_dask import DaskTaskRunner
+from tqdm.auto import tqdm
 
 from envs.synthesis import ShardResult, ShardSpec, split_successes
 from flows.plan_trials import Trials
@@ -76,7 +77,7 @@ def worker_env() -> dict[str, str]:
     When ``PREFECT_API_URL`` is unset, Prefect's temporary server of this process is started (if it
     is not yet) and its URL is passed on, so workers report to it instead of starting their own.
     """
-    from prefect.client.orchestration import get_client
+    from prefect.client.orchestration import get_client  # heavy: prefect
     from prefect.settings import PREFECT_API_URL
 
     url = PREFECT_API_URL.value()
@@ -88,11 +89,7 @@ def worker_env() -> dict[str, str]:
 
 def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None:
     """A progress bar with the live yield, read from the shards' attempt logs until all shards end."""
-    import time
-
-    from tqdm.auto import tqdm
-
-    from envs.synthesis import read_attempts
+    from envs.synthesis import read_attempts  # heavy: loads the simulator
 
     target = sum(spec.n_success for spec in specs)
     with tqdm(total=target, desc="synthesis", unit="demo") as bar:
@@ -131,7 +128,7 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
     """Stage ``synthesis`` (a subflow; child run ``synthesis``): ``cfg.demos_per_task`` successful demos per
     task, attempted on Dask (``synthesize``) after the plan trials, resumed where an earlier run stopped;
     the yield per task and the demos per minute logged."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     from envs.synthesis import read_attempts, yield_report
 

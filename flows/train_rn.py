@@ -11,9 +11,10 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from flows.features import Features
+from flows.compute_features import Features
 from prl import tracking
 from prl.config import PipelineConfig
+from prl.plb import load_plb
 
 
 @dataclass(frozen=True)
@@ -29,12 +30,14 @@ class TrainedRN:
 def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> TrainedRN:
     """Train the RN on the scenes not held out (``cfg.rn_val_fraction`` of the seeds are), log its curves,
     per-dimension accuracy, Fig 7 (``rn_probabilities.png``) and the task plan libraries, save and register it."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     from prl.features import FEATURE_LAYOUT, split_by_seed
-    from prl.plb import load_plb
     from prl.plots import plot_rn_probabilities
-    from prl.rn import RNConfig, per_dim_accuracy, plan_libraries, predict_proba, save_rn, train_rn
+    from prl.rn import RNConfig
+    from prl.rn_checkpoint import save_rn
+    from prl.rn_decode import per_dim_accuracy, plan_libraries, predict_proba
+    from prl.rn_train import train_rn
     from prl.version import file_digest
 
     plb = load_plb()
@@ -75,7 +78,7 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
 def log_registered_rn(model: Any, x_check: np.ndarray) -> float:
     """Log the RN as an MLflow model with a signature, register it as ``prl-rn``, reload it and return the
     largest absolute logit difference between the reloaded and the in-memory model on ``x_check``."""
-    import mlflow
+    import mlflow  # heavy: mlflow
     import torch
     from mlflow.models import infer_signature
 

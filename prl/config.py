@@ -1,10 +1,18 @@
-"""Typed pipeline configuration, validated before any work starts."""
+"""Typed configuration, validated before any work starts: the pipeline's, the LN's, the LN ablation sweep's.
+
+The CLIs are generated from these dataclasses (``prl.cli``): a flag is its field's name (``--eval-scenes``,
+``--ln-timesteps`` for the nested LN settings), and the Prefect flows take the same names as ``overrides``.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, ClassVar, get_origin, get_type_hints
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 
@@ -13,9 +21,115 @@ class ConfigError(ValueError):
     """A configuration value is invalid; the message names it."""
 
 
+PAPER_LN_DEMO_STEPS = 1280
+"""The demonstration steps of the paper's LN (its ablation's reference point)."""
+
+PRETRAIN_MODES: tuple[str, ...] = ("actor_critic", "bc")
+"""Demonstration pre-training: actor and critic (the paper), or the actor alone (behaviour cloning)."""
+
+LN_VARIANTS: tuple[str, ...] = ("physics", "bc", "joint")
+"""LN variants: physics-guided A2C with actor+critic pre-training, the same with BC, joint control."""
+
+
+@dataclass(frozen=True)
+class LNConfig:
+    """The Learning Network's settings (``prl.ln``). The defaults are the paper's (Sec. V-B) and their one
+    definition; everything they leave open is SB3's A2C default (recorded by ``params``)."""
+
+    timesteps: int = 3200
+    """RL timesteps (plan episodes) after pre-training (paper: 3200)."""
+    learning_rate: float = 7e-4
+    """A2C learning rate (RMSprop)."""
+    steps_per_update: int = 64
+    """Samples per A2C update, n_steps x n_envs (paper: 64); also the pre-training minibatch."""
+    gamma: float = 0.99
+    """Discount factor."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    ent_coef: float = 0.01
+    """Entropy coefficient."""
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layer widths of both the policy and the value net."""
+    n_envs: int = 1
+    """Plan environments stepped in parallel (subprocesses when > 1); a divisor of steps_per_update."""
+    demo_steps: int | None = None
+    """Demonstration transitions used by pre-training (0: pure RL; None: the paper's 1280, or all of a
+    task's demonstrations if it has fewer)."""
+    pretrain_mode: str = "actor_critic"
+    """One of ``PRETRAIN_MODES``."""
+    pretrain_epochs: int = 10
+    """Passes over the demo_steps transitions."""
+    seed: int = 0
+    """Seed of the A2C and of the demonstrations' shuffle."""
+    extra: dict[str, Any] = field(default_factory=dict, hash=False)
+    """Further SB3 A2C keyword arguments, as JSON on the command line (empty in the paper's settings)."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.hidden, list):
+            object.__setattr__(self, "hidden", tuple(self.hidden))
+        ints = {"timesteps": (self.timesteps, 0), "steps_per_update": (self.steps_per_update, 1),
+                "n_envs": (self.n_envs, 1), "pretrain_epochs": (self.pretrain_epochs, 1), "seed": (self.seed, 0)}
+        if self.demo_steps is not None:
+            ints["demo_steps"] = (self.demo_steps, 0)
+        for name, (value, low) in ints.items():
+            if not _is_int(value) or value < low:
+                raise ConfigError(f"ln.{name} must be an integer >= {low}, got {value!r}")
+        for name in ("learning_rate", "gamma", "gae_lambda", "ent_coef"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+                raise ConfigError(f"ln.{name} must be a finite number >= 0, got {value!r}")
+        if self.steps_per_update % self.n_envs:
+            raise ConfigError(f"ln.n_envs must divide ln.steps_per_update ({self.steps_per_update}), the samples of "
+                              f"one A2C update (n_steps x n_envs), got {self.n_envs!r}")
+        if not self.hidden or any(not _is_int(h) or h < 1 for h in self.hidden):
+            raise ConfigError(f"ln.hidden must be positive layer widths, got {self.hidden!r}")
+        if self.pretrain_mode not in PRETRAIN_MODES:
+            raise ConfigError(f"unknown ln.pretrain_mode {self.pretrain_mode!r}; known: {', '.join(PRETRAIN_MODES)}")
+        if not isinstance(self.extra, dict):
+            raise ConfigError(f"ln.extra must be a mapping of SB3 A2C keyword arguments, got {self.extra!r}")
+
+    @property
+    def n_steps(self) -> int:
+        """SB3's ``n_steps``: steps per environment per update."""
+        return self.steps_per_update // self.n_envs
+
+    def a2c_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``stable_baselines3.A2C`` (without policy, env and features)."""
+        return {"learning_rate": self.learning_rate, "n_steps": self.n_steps, "gamma": self.gamma,
+                "gae_lambda": self.gae_lambda, "ent_coef": self.ent_coef, "seed": self.seed, **self.extra}
+
+    def params(self) -> dict[str, Any]:
+        """Every setting, for MLflow: this config plus the SB3 defaults it leaves in place."""
+        # heavy: torch (stable-baselines3); this module stays pure (the CLIs and config checks import it without
+        # torch): only recording an LN run's parameters needs SB3's signature
+        from stable_baselines3 import A2C
+
+        defaults = {k: v.default for k, v in inspect.signature(A2C.__init__).parameters.items()
+                    if k not in ("self", "policy", "env", "policy_kwargs", "tensorboard_log", "verbose", "device",
+                                 "_init_setup_model", "seed", "learning_rate", "n_steps", "gamma", "gae_lambda",
+                                 "ent_coef")}
+        return {**{f"ln.{k}": v for k, v in dataclasses.asdict(self).items() if k != "extra"},
+                **{f"sb3.{k}": self.extra.get(k, v) for k, v in defaults.items()}}
+
+
+def _check_ln_set_per_point(ln: LNConfig, names: tuple[str, ...], why: str) -> None:
+    """ConfigError naming an LN setting that each LN point sets itself, when given another value than the default."""
+    for name in names:
+        value, default = getattr(ln, name), LNConfig.__dataclass_fields__[name].default
+        if value != default:
+            raise ConfigError(f"ln.{name} is set per LN point ({why}); leave it at {default!r}, got {value!r}")
+
+
+def _pipeline_ln() -> LNConfig:
+    return LNConfig(timesteps=64, n_envs=2)
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Settings of one pipeline run."""
+
+    LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("pretrain_mode", "seed")
+    """LN settings the pipeline's LN points take from elsewhere (the physics variant; ``seed``): no flags."""
 
     profile: str = "quick"
     """Named preset: 'quick' (laptop minutes) or 'paper' (the paper's scale)."""
@@ -57,13 +171,9 @@ class PipelineConfig:
     """Randomisation half-width scale of the harder evaluation split (1 = the training ranges)."""
     train_ln: bool = True
     """Run the Learning Network stage after the RN stages (it reads their features; off when ``train_rn`` is)."""
-    ln_timesteps: int = 64
-    """RL timesteps (plan episodes) of each LN run (paper: 3200; one A2C update takes 64)."""
-    ln_demo_steps: int | None = None
-    """Demonstration transitions the LN is pre-trained on (paper's ablation: 1280; at most demos_per_task;
-    None: 1280 or all of a task's demos if it has fewer; 0: pure RL)."""
-    ln_envs: int = 2
-    """Plan environments stepped in parallel by each LN run (a divisor of 64)."""
+    ln: LNConfig = field(default_factory=_pipeline_ln)
+    """The LN runs' settings (one per task; the paper's but timesteps, by profile, and 2 parallel envs);
+    demo_steps None: 1280 or all of a task's demos if it has fewer (at most demos_per_task)."""
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -74,9 +184,9 @@ class PipelineConfig:
             if task not in TASKS:
                 raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
         for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers", "pn_epochs",
-                     "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes", "ln_timesteps", "ln_envs"):
+                     "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value <= 0:
+            if not _is_int(value) or value <= 0:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
         if not isinstance(self.rn_val_fraction, float) or not 0.0 < self.rn_val_fraction < 1.0:
             raise ConfigError(f"rn_val_fraction must be a number in (0, 1), got {self.rn_val_fraction!r}")
@@ -86,16 +196,18 @@ class PipelineConfig:
             raise ConfigError(f"the RN needs at least 3 demos (2 to train on, BatchNorm needs a pair; 1 held out); "
                               f"demos_per_task={self.demos_per_task} with {len(self.tasks)} task(s) "
                               f"(pass more demos, or skip the RN stages)")
-        if self.ln_demo_steps is None:
-            object.__setattr__(self, "ln_demo_steps", min(PAPER_LN_DEMO_STEPS, self.demos_per_task))
-        if isinstance(self.ln_demo_steps, bool) or not isinstance(self.ln_demo_steps, int) or self.ln_demo_steps < 0:
-            raise ConfigError(f"ln_demo_steps must be a non-negative integer, got {self.ln_demo_steps!r}")
-        if self.train_rn and self.train_ln and self.ln_demo_steps > self.demos_per_task:
-            raise ConfigError(f"ln_demo_steps={self.ln_demo_steps} exceeds demos_per_task={self.demos_per_task}: "
+        if not isinstance(self.ln, LNConfig):
+            raise ConfigError(f"ln must be an LNConfig, got {self.ln!r}")
+        if self.ln.timesteps <= 0:
+            raise ConfigError(f"ln.timesteps must be a positive integer, got {self.ln.timesteps!r}")
+        _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "the pipeline's are physics-guided and seeded by seed")
+        if self.ln.demo_steps is None:
+            object.__setattr__(self, "ln", dataclasses.replace(
+                self.ln, demo_steps=min(PAPER_LN_DEMO_STEPS, self.demos_per_task)))
+        if self.train_rn and self.train_ln and self.ln.demo_steps > self.demos_per_task:
+            raise ConfigError(f"ln.demo_steps={self.ln.demo_steps} exceeds demos_per_task={self.demos_per_task}: "
                               f"the LN cannot be pre-trained on more demonstrations than synthesis keeps")
-        if 64 % self.ln_envs:
-            raise ConfigError(f"ln_envs must divide the 64 steps of an A2C update, got {self.ln_envs!r}")
-        if not isinstance(self.seed, int) or self.seed < 0:
+        if not _is_int(self.seed) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         out = Path(self.output_dir)
         probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("/"))
@@ -104,20 +216,130 @@ class PipelineConfig:
         object.__setattr__(self, "output_dir", out.resolve())
 
 
-PAPER_LN_DEMO_STEPS = 1280
-"""The demonstration steps of the paper's LN (its ablation's reference point)."""
-
 PROFILES: dict[str, dict] = {
     "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4,
-              "ln_timesteps": 64},
+              "ln": {"timesteps": 64}},
     "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16, "rn_epochs": 200, "rn_eval_scenes": 50,
-              "pn_epochs": 30, "pn_shapes": 4000, "ln_timesteps": 3200},
+              "pn_epochs": 30, "pn_shapes": 4000, "ln": {"timesteps": LNConfig.timesteps}},
 }
+"""Each profile's settings over ``PipelineConfig``'s defaults; ``ln`` is merged over the default LN settings."""
 
 
-def make_config(profile: str = "quick", **overrides) -> PipelineConfig:
-    """The named profile's config with ``overrides`` (None values ignored) applied."""
+@dataclass(frozen=True)
+class AblationConfig:
+    """Settings of one LN ablation sweep (paper Fig 8, ``flows.ablation``): its points are tasks x variants x
+    demo_steps x seeds, each an LN run with the ``ln`` settings."""
+
+    LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("demo_steps", "pretrain_mode", "seed")
+    """LN settings each sweep point sets itself (demo_steps, variant, seeds): no flags."""
+
+    dataset_root: Path
+    """Exported LeRobot dataset root (the pipeline's datasets/...)."""
+    pointnet_path: Path
+    """The PointNet checkpoint the RN used (models/pointnet-*.pt)."""
+    repo_id: str | None = None
+    """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
+    tasks: tuple[str, ...] = ("hammer",)
+    """Tasks swept, each with demonstrations in the dataset."""
+    variants: tuple[str, ...] = LN_VARIANTS
+    """LN variants swept: physics (actor+critic pre-training), bc, joint (joint control, no demonstrations)."""
+    demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
+    """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc only for K > 0, joint once."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Seeds of each point."""
+    eval_scenes: int = 50
+    """Unseen scenes each final policy is evaluated on."""
+    eval_seed: int = 0
+    """Run seed the evaluation scenes derive from (the pipeline's rn-eval scenes of that seed)."""
+    workers: int = 2
+    """Dask worker processes of the local cluster (points run one per worker)."""
+    dask_address: str | None = None
+    """Address of a running Dask scheduler to use instead of a local cluster."""
+    output_dir: Path = Path("outputs/ablation")
+    """Where demonstrations, checkpoints, point summaries and Fig 8 are written."""
+    n_points: int = 512
+    """Surface points per tool / object cloud (the PointNet's)."""
+    reevaluate: bool = False
+    """Evaluate the finished points' final policies again (after a task's success criterion changed)."""
+    ln: LNConfig = field(default_factory=LNConfig)
+    """Every point's LN settings (the paper's; one plan env per point)."""
+
+    def __post_init__(self) -> None:
+        for name in ("dataset_root", "pointnet_path"):
+            if not isinstance(getattr(self, name), (str, Path)) or not str(getattr(self, name)):
+                raise ConfigError(f"{name} must be a path, got {getattr(self, name)!r}")
+        for name, known in (("tasks", TASKS), ("variants", LN_VARIANTS)):
+            values = getattr(self, name)
+            if not values:
+                raise ConfigError(f"{name} is empty; give at least one of {', '.join(known)}")
+            for v in values:
+                if v not in known:
+                    raise ConfigError(f"unknown {name[:-1]} {v!r} in {name}; known: {', '.join(known)}")
+        for name in ("demo_steps", "seeds"):
+            values = getattr(self, name)
+            if not values or any(not _is_int(v) or v < 0 for v in values):
+                raise ConfigError(f"{name} must be non-negative integers (at least one), got {values!r}")
+        for name, low in (("eval_scenes", 1), ("eval_seed", 0), ("workers", 1), ("n_points", 1)):
+            value = getattr(self, name)
+            if not _is_int(value) or value < low:
+                raise ConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+        if not isinstance(self.reevaluate, bool):
+            raise ConfigError(f"reevaluate must be true or false, got {self.reevaluate!r}")
+        if not isinstance(self.ln, LNConfig):
+            raise ConfigError(f"ln must be an LNConfig, got {self.ln!r}")
+        _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "by demo_steps, variants and seeds")
+        for name in ("dataset_root", "pointnet_path", "output_dir"):
+            object.__setattr__(self, name, Path(getattr(self, name)))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def build_config(cls: type, base: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None,
+                 prefix: str = "") -> Any:
+    """``cls`` from ``base`` with ``overrides`` over it (None values ignored in both): JSON-like values become the
+    field's type (lists tuples, strings paths), and a nested dataclass field (``ln``) given as a dict is merged
+    over the value so far (or the field's default). ``ConfigError`` naming an unknown or missing setting."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = get_type_hints(cls)
+    values: dict[str, Any] = {}
+    for layer in (base or {}, overrides or {}):
+        for name, value in layer.items():
+            if value is None:
+                continue
+            if name not in fields:
+                raise ConfigError(f"unknown setting {prefix + name!r}; known: {', '.join(prefix + f for f in fields)}")
+            hint = hints[name]
+            if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+                current = values.get(name)
+                if current is None:
+                    f = fields[name]
+                    current = f.default_factory() if f.default_factory is not dataclasses.MISSING else hint()
+                value = build_config(hint, dataclasses.asdict(current), value, prefix=f"{prefix}{name}.")
+            elif isinstance(value, list) and get_origin(hint) is tuple:
+                value = tuple(value)
+            elif hint is Path and isinstance(value, str):
+                value = Path(value)
+            values[name] = value
+    missing = [n for n, f in fields.items() if n not in values and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"missing setting(s) {', '.join(prefix + n for n in missing)} of {cls.__name__}")
+    return cls(**values)
+
+
+def make_config(profile: str = "quick", **overrides: Any) -> PipelineConfig:
+    """The named profile's config with ``overrides`` (None values ignored) applied; ``ln`` may be a dict of LN
+    settings merged over the profile's (``ln={"timesteps": 64}``) or an ``LNConfig`` replacing them."""
     if profile not in PROFILES:
         raise ConfigError(f"unknown profile {profile!r}; known: {sorted(PROFILES)}")
-    clean = {k: v for k, v in overrides.items() if v is not None}
-    return PipelineConfig(profile=profile, **{**PROFILES[profile], **clean})  # one construction: derived defaults follow
+    if overrides.get("profile") not in (None, profile):
+        raise ConfigError(f"profile is make_config's first argument, not an override (got {overrides['profile']!r})")
+    return build_config(PipelineConfig, {"profile": profile, **PROFILES[profile]}, overrides)
+
+
+def make_ablation_config(dataset_root: str | Path, pointnet_path: str | Path, **overrides: Any) -> AblationConfig:
+    """The sweep's config: its dataset and PointNet, ``overrides`` (None values ignored) over the defaults;
+    ``ln`` as in ``make_config``."""
+    return build_config(AblationConfig, {"dataset_root": dataset_root, "pointnet_path": pointnet_path}, overrides)

@@ -20,13 +20,13 @@ a new scene whose plan the network is asked to choose. Each sample is
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from prl.atomic import atomic_file
 from prl.constants import N_JOINTS, N_SENSORS
 
 X_MANIP_SAMPLES = 8
@@ -48,7 +48,7 @@ ARRAY_FIELDS: tuple[str, ...] = (
 
 @dataclass
 class Demo:
-    """An executed plan: identity, outcome and recorded arrays (see ``envs.executor.EpisodeResult``)."""
+    """An executed plan: identity, outcome and recorded arrays (see ``envs.execution.EpisodeResult``)."""
 
     task: str
     """Task name."""
@@ -103,17 +103,12 @@ def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo
 
 
 def save_demo(demo: Demo, path: Path) -> Path:
-    """Write ``demo`` to ``path`` (.npz) atomically (temporary file + rename)."""
+    """Write ``demo`` to ``path`` (.npz) atomically (``prl.atomic.atomic_file``: temporary file + rename)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = {"task": demo.task, "seed": demo.seed, "text": demo.text, "success": demo.success,
               "outcome": demo.outcome, "scene_params": demo.scene_params}
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as fh:
+    with atomic_file(path, "wb") as fh:
         np.savez_compressed(fh, header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8), **demo.arrays)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
     return path
 
 

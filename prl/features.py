@@ -29,7 +29,7 @@ import numpy as np
 from prl.demo import X_MANIP_DIM
 from prl.pointnet import PN_DIM
 from prl.rn import FeatureLayout
-from prl.text_embed import TE_DIM
+from prl.text_embed import TE_DIM, embed_texts
 
 FEATURE_LAYOUT = FeatureLayout((("x_manip", X_MANIP_DIM), ("text", TE_DIM), ("tool_points", PN_DIM),
                                 ("object_points", PN_DIM)))
@@ -65,9 +65,10 @@ class Episodes:
 
 def read_episodes(root: Path | str, repo_id: str) -> Episodes:
     """Per-episode RN inputs of the LeRobot dataset at ``root``; clear errors for a missing piece."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy: lerobot
 
-    from prl.export import drop_datasets_cache, read_scenes
+    from prl.export_check import drop_datasets_cache
+    from prl.export_schema import read_scenes
 
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
@@ -114,7 +115,7 @@ def point_seed(task: str, seed: int, part: str) -> int:
 def point_features(pointnet: Any, tasks: Sequence[str], seeds: Sequence[int],
                    scene_params: Sequence[dict[str, float]], n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """(N, 256) tool and (N, 256) object PointNet features of the scenes' rebuilt meshes."""
-    from prl.pointnet import encode_points
+    from prl.pointnet import encode_points  # heavy: trimesh
     from prl.shapes import sample_points, scene_meshes
 
     tool_pts, obj_pts = [], []
@@ -127,8 +128,6 @@ def point_features(pointnet: Any, tasks: Sequence[str], seeds: Sequence[int],
 
 def assemble(x_manip: np.ndarray, texts: Sequence[str], tool: np.ndarray, obj: np.ndarray) -> np.ndarray:
     """x = [x_manip | TE(text) | tool | object] as (N, 1680) float32, checked against ``FEATURE_LAYOUT``."""
-    from prl.text_embed import embed_texts
-
     unique = sorted(set(texts))
     table = dict(zip(unique, embed_texts(unique)))
     te = np.stack([table[t] for t in texts])

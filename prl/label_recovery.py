@@ -1,4 +1,4 @@
-"""Label recovery (DESIGN step 3): recompute a demonstration's plan vector from its recorded data.
+"""Label recovery (docs/design.md "Labels"): recompute a demonstration's plan vector from its recorded data.
 
 A demonstration (``prl.demo.Demo``, or its ``.npz``) holds the commanded plan ``a0..a5`` and what
 the simulator recorded while executing it. :func:`recover_plan` ignores the plan and recomputes each
@@ -8,7 +8,7 @@ Pure numpy: no simulator import (``.npz`` files are read by :func:`prl.demo.load
 ``envs``). A label of -1 means "undeterminable from this recording" (stage never reached, tool not
 in the hand, no motion) and never counts as agreement.
 
-Which recorded frames each dimension uses, and why (stage indices are ``envs.executor.STAGES``):
+Which recorded frames each dimension uses, and why (stage indices are ``prl.stages.STAGES``):
 
 * **a0, a1 (Eq 4)** -- Euler XYZ angles of the palm link rotation relative to T_gv,
   ``relative_euler_xyz(R_gv, R_palm)`` (the executor commands ``R_palm = R_gv Rx(a0) Rz(a1)``, so the
@@ -38,7 +38,7 @@ Which recorded frames each dimension uses, and why (stage indices are ``envs.exe
   the best (face, anchor) pair. The grasp-end reading is kept as ``anchor_grasp_end``, and a variant
   that uses the palm normal instead of the box faces as ``anchor_palm_normal``, for diagnosis.
   Eq 5 compares anchor directions with T_gv's face normals, so a palm tilted about the handle by
-  a0 <= -20 deg reads the neighbouring anchor row (see the README's label table).
+  a0 <= -20 deg reads the neighbouring anchor row (see the label table in docs/results.md).
 * **a3 (Eqs 6-7)** -- each sensor is binarised with ``CONTACT_THRESHOLD_N`` = 1 N (the hammer
   weighs ~2.3 N; 99% of non-zero sensor forces during the lift are above 1.3 N, the rest are
   grazing touches), ``grasp_label`` per record of the **lift** stage (the tool hangs in the hand:
@@ -89,9 +89,8 @@ import numpy as np
 from prl import labels
 from prl.demo import load_demo
 from prl.plb import PhysicalLawsBank, load_plb
+from prl.stages import STAGES
 
-#: Stage names of ``envs.executor.STAGES`` (copied: importing ``envs`` would load the simulator).
-STAGES: tuple[str, ...] = ("pregrasp", "approach", "grasp", "lift", "transport", "place", "motion", "post_lift")
 _APPROACH, _GRASP, _LIFT, _PLACE, _MOTION = (STAGES.index(s) for s in ("approach", "grasp", "lift", "place", "motion"))
 
 CONTACT_THRESHOLD_N = 1.0

@@ -2,9 +2,9 @@
 
 The LN is stable-baselines3's A2C acting on x, the RN's input (``prl.features``), with the plan
 vector as a MultiDiscrete action; one RL step executes one whole plan (``envs.plan_env.PlanEnv``).
-The paper's settings are ``LNConfig``'s defaults: policy and value nets of two hidden layers of
-256, lr 0.0007, 64 steps per update (``n_steps`` x ``n_envs``), gamma 0.99, GAE lambda 0.95, entropy
-coefficient 0.01, 3200 timesteps; everything else is SB3's default (RMSprop, value coefficient 0.5,
+The paper's settings are the defaults of ``LNConfig`` (``prl.config``, their one definition): policy and
+value nets of two hidden layers of 256, lr 0.0007, 64 steps per update (``n_steps`` x ``n_envs``), gamma
+0.99, GAE lambda 0.95, entropy coefficient 0.01, 3200 timesteps; everything else is SB3's default (RMSprop, value coefficient 0.5,
 gradient clip 0.5), recorded by ``LNConfig.params``. With one-step episodes (``terminated=True``) the
 GAE advantage is r - V(x): the critic is a learned baseline of the plan's reward on this scene.
 
@@ -14,8 +14,8 @@ Pre-training with demonstrations (``pretrain``), our reading of the paper's open
   RN input x, its commanded plan, and its measured reward (the task's measure in its outcome),
   counted like one RL timestep. ``demo_steps = K`` uses K transitions of the exported dataset (the
   first K of a seeded shuffle); asking for more than the dataset holds is an error, not a silent
-  re-use. The K transitions are passed over ``pretrain_epochs`` times in minibatches of 64 (the size
-  of one A2C update).
+  re-use. The K transitions are passed over ``pretrain_epochs`` times in minibatches of one A2C
+  update's samples (``steps_per_update``, the paper's 64).
 - targets are the **commanded plans**, which physics confirmed (every exported demo succeeded), not
   the RN's classifications: the RN is trained on the same plans, so its argmax would feed the LN the
   RN's errors as well. The recovered physical-law labels are not targets (some dimensions have no
@@ -27,10 +27,9 @@ Pre-training with demonstrations (``pretrain``), our reading of the paper's open
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,80 +37,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-PRETRAIN_MODES: tuple[str, ...] = ("actor_critic", "bc")
-"""Demonstration pre-training: actor and critic (the paper), or the actor alone (behaviour cloning)."""
-PAPER_A2C: dict[str, Any] = {"learning_rate": 7e-4, "steps_per_update": 64, "gamma": 0.99, "gae_lambda": 0.95,
-                             "ent_coef": 0.01, "hidden": (256, 256), "timesteps": 3200}
-"""The paper's A2C settings (Sec. V-B), the defaults of ``LNConfig``."""
-
-
-@dataclass(frozen=True)
-class LNConfig:
-    """One LN run. The defaults are the paper's (``PAPER_A2C``) with no pre-training."""
-
-    timesteps: int = 3200
-    """RL timesteps (plan episodes) after pre-training."""
-    learning_rate: float = 7e-4
-    steps_per_update: int = 64
-    """Samples per A2C update, n_steps x n_envs."""
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    ent_coef: float = 0.01
-    hidden: tuple[int, ...] = (256, 256)
-    """Hidden layers of both the policy and the value net."""
-    n_envs: int = 1
-    """Plan environments stepped in parallel (subprocesses when > 1)."""
-    demo_steps: int = 0
-    """Demonstration transitions used by pre-training (0: pure RL)."""
-    pretrain_mode: str = "actor_critic"
-    """One of ``PRETRAIN_MODES``."""
-    pretrain_epochs: int = 10
-    """Passes over the ``demo_steps`` transitions."""
-    seed: int = 0
-    extra: dict[str, Any] = field(default_factory=dict)
-    """Further SB3 A2C keyword arguments (empty in the paper's settings)."""
-
-    def __post_init__(self) -> None:
-        ints = {"timesteps": (self.timesteps, 0), "steps_per_update": (self.steps_per_update, 1),
-                "n_envs": (self.n_envs, 1), "demo_steps": (self.demo_steps, 0),
-                "pretrain_epochs": (self.pretrain_epochs, 1), "seed": (self.seed, 0)}
-        for name, (value, low) in ints.items():
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"LNConfig.{name} must be an integer >= {low}, got {value!r}")
-        for name in ("learning_rate", "gamma", "gae_lambda", "ent_coef"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
-                raise ValueError(f"LNConfig.{name} must be a finite number >= 0, got {value!r}")
-        if self.steps_per_update % self.n_envs:
-            raise ValueError(f"LNConfig.steps_per_update ({self.steps_per_update}) must be a multiple of "
-                             f"n_envs ({self.n_envs}): an update takes n_steps x n_envs samples")
-        if not self.hidden or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in self.hidden):
-            raise ValueError(f"LNConfig.hidden must be positive layer widths, got {self.hidden!r}")
-        if self.pretrain_mode not in PRETRAIN_MODES:
-            raise ValueError(f"unknown pretrain_mode {self.pretrain_mode!r}; known: {', '.join(PRETRAIN_MODES)}")
-
-    @property
-    def n_steps(self) -> int:
-        """SB3's ``n_steps``: steps per environment per update."""
-        return self.steps_per_update // self.n_envs
-
-    def a2c_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``stable_baselines3.A2C`` (without policy, env and features)."""
-        return {"learning_rate": self.learning_rate, "n_steps": self.n_steps, "gamma": self.gamma,
-                "gae_lambda": self.gae_lambda, "ent_coef": self.ent_coef, "seed": self.seed, **self.extra}
-
-    def params(self) -> dict[str, Any]:
-        """Every setting, for MLflow: this config plus the SB3 defaults it leaves in place."""
-        import inspect
-
-        from stable_baselines3 import A2C
-
-        defaults = {k: v.default for k, v in inspect.signature(A2C.__init__).parameters.items()
-                    if k not in ("self", "policy", "env", "policy_kwargs", "tensorboard_log", "verbose", "device",
-                                 "_init_setup_model", "seed", "learning_rate", "n_steps", "gamma", "gae_lambda",
-                                 "ent_coef")}
-        return {**{f"ln.{k}": v for k, v in asdict(self).items() if k != "extra"},
-                **{f"sb3.{k}": self.extra.get(k, v) for k, v in defaults.items()}}
+from prl.config import PRETRAIN_MODES, LNConfig  # the settings live in the pure config module
 
 
 class StandardizedX(BaseFeaturesExtractor):
@@ -130,7 +56,7 @@ def make_ln(env: Any, cfg: LNConfig, x_mean: np.ndarray | None = None, x_std: np
     """A fresh A2C with the config's settings on ``env`` (a gymnasium env or SB3 VecEnv). Given ``x_mean`` and
     ``x_std`` (the demonstrations' feature statistics, ``prl.rn.feature_stats``) the policy standardises x with
     them (``StandardizedX``); without, it sees the observation as it is (the joint-control baseline)."""
-    from stable_baselines3 import A2C
+    from stable_baselines3 import A2C  # heavy: torch (stable-baselines3)
 
     policy_kwargs: dict[str, Any] = {"net_arch": {"pi": list(cfg.hidden), "vf": list(cfg.hidden)}}
     if x_mean is not None and x_std is not None:
@@ -184,11 +110,13 @@ def task_demonstrations(task: str, measure_key: str, x: np.ndarray, plans: np.nd
     return Demonstrations(np.asarray(x, np.float32)[idx], np.asarray(plans, np.int64)[idx], reward)
 
 
-def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epochs: int = 10, batch_size: int = 64,
-             seed: int = 0, on_batch: Callable[[int, dict[str, float]], None] | None = None) -> list[dict[str, float]]:
-    """Pre-train ``model`` (an A2C of ``make_ln``) on ``demos`` (see the module docstring); one row of losses
-    per minibatch (``actor_loss``, ``critic_loss``, ``expert_prob``: the mean probability of the demonstrated plan)."""
-    import torch.nn.functional as F
+def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epochs: int = 10,
+             batch_size: int | None = None, seed: int = 0,
+             on_batch: Callable[[int, dict[str, float]], None] | None = None) -> list[dict[str, float]]:
+    """Pre-train ``model`` (an A2C of ``make_ln``) on ``demos`` (see the module docstring) in minibatches of
+    ``batch_size`` (None: one A2C update's samples, ``n_steps x n_envs``); one row of losses per minibatch
+    (``actor_loss``, ``critic_loss``, ``expert_prob``: the mean probability of the demonstrated plan)."""
+    import torch.nn.functional as F  # heavy: torch
 
     if mode not in PRETRAIN_MODES:
         raise ValueError(f"unknown pretrain mode {mode!r}; known: {', '.join(PRETRAIN_MODES)}")
@@ -200,6 +128,7 @@ def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epoc
     if demos.plan.shape[1] != len(model.action_space.nvec):
         raise ValueError(f"demonstrated plans have {demos.plan.shape[1]} dimensions, the LN acts on "
                          f"{len(model.action_space.nvec)}")
+    batch_size = int(batch_size or model.n_steps * model.n_envs)
     policy = model.policy
     policy.set_training_mode(True)
     rng = np.random.default_rng(seed)
@@ -227,18 +156,14 @@ def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epoc
     return rows
 
 
-WINDOW = 64
-"""Episodes in ``window_success_rate``: the last update's worth of plan episodes."""
-
-
 def curve_callback(on_update: Callable[[dict[str, float]], None] | None = None, progress: bool = True,
                    total: int | None = None, desc: str = "LN") -> Any:
     """An SB3 callback that turns every A2C update into one row: ``timesteps``, ``frames`` (physics frames so
     far), ``success_rate`` and ``reward`` (mean over the episodes that ended in the update's rollout; 0 when none
-    did), ``window_success_rate`` (over the last ``WINDOW`` episodes ended so far: a joint-control episode
-    spans several updates), ``episodes``, ``errors``, and the update's ``policy_loss``, ``value_loss``,
+    did), ``window_success_rate`` (over the last update's worth of episodes ended so far, ``n_steps x n_envs``:
+    a joint-control episode spans several updates), ``episodes``, ``errors``, and the update's ``policy_loss``, ``value_loss``,
     ``entropy``. Rows go to ``on_update`` and to the callback's ``rows``."""
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.callbacks import BaseCallback  # heavy: torch (stable-baselines3)
     from tqdm.auto import tqdm
 
     class Curve(BaseCallback):
@@ -246,12 +171,13 @@ def curve_callback(on_update: Callable[[dict[str, float]], None] | None = None, 
             super().__init__()
             self.rows: list[dict[str, float]] = []
             self._episodes: list[dict[str, Any]] = []
-            self._window: deque[bool] = deque(maxlen=WINDOW)
+            self._window: deque[bool] = deque()
             self._pending: dict[str, float] | None = None
             self._frames = 0
             self._bar: Any = None
 
         def _on_training_start(self) -> None:
+            self._window = deque(maxlen=self.model.n_steps * self.model.n_envs)  # one update's worth
             self._bar = tqdm(total=total, desc=desc, unit="plan", disable=not progress)
 
         def _on_step(self) -> bool:
@@ -316,7 +242,7 @@ def predict_plans(policy: Any, x: np.ndarray) -> np.ndarray:
 
 def ln_policy(policy: Any, pointnet: Any, task_name: str, texts: Sequence[str], seeds: Sequence[int], n_points: int):
     """An ``envs.trials.Policy`` executing the LN's deterministic plan for the live scene's x."""
-    from prl.features import scene_features
+    from prl.features import scene_features  # heavy: trimesh
 
     def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
         x = scene_features(task_name, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)],
@@ -338,7 +264,7 @@ def save_ln(model: Any, path: str | Path) -> Path:
 
 def load_ln(path: str | Path) -> Any:
     """The A2C saved at ``path``; ``FileNotFoundError`` naming it when missing."""
-    from stable_baselines3 import A2C
+    from stable_baselines3 import A2C  # heavy: torch (stable-baselines3)
 
     path = Path(path)
     if not path.is_file():

@@ -501,6 +501,15 @@ def validate_plan(plan: Sequence[int] | np.ndarray, plb: PhysicalLawsBank | None
     return (plb or load_plb()).validate_plan(plan)
 
 
+def parse_plan(text: str, plb: PhysicalLawsBank | None = None) -> np.ndarray:
+    """A plan vector from its command-line form ``"0,3,2,0,0,1"``, validated; ``PLBError`` naming the text."""
+    try:
+        values = [int(part) for part in str(text).split(",")]
+    except ValueError:
+        raise PLBError(f"a plan is comma-separated integers such as 0,3,2,0,0,1; got {text!r}") from None
+    return validate_plan(values, plb)
+
+
 def encode(
     choices: Mapping[str, object] | Sequence[object], plb: PhysicalLawsBank | None = None
 ) -> np.ndarray:

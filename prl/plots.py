@@ -1,4 +1,4 @@
-"""Figures logged to MLflow and shown in the README (matplotlib, headless)."""
+"""Figures logged to MLflow and shown in docs/ (matplotlib, headless)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str, int],
                      measures: Mapping[str, Sequence[float]], measure_name: str, out: Path) -> Path:
     """Bar chart of success rate per plan kind, and the distribution of the measured quantity."""
-    import matplotlib
+    import matplotlib  # heavy: matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: matplotlib
 
     kinds = list(rates)
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9, 3.4))
@@ -48,15 +48,15 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
     """The paper's Fig 7 redrawn: one row per task, one bar chart per RS dimension.
 
     ``probs_by_task[task][i]`` is the (N, m_i) RN probabilities of dimension i over the task's samples;
-    each bar is the mean predicted probability of a choice. Key dimensions (``prl.rn.key_dimensions``:
+    each bar is the mean predicted probability of a choice. Key dimensions (``prl.rn_decode.key_dimensions``:
     the top mean probability exceeds ``tau / m_i``, drawn as a dashed line) are drawn in colour with
     their top choice highlighted; the others in grey."""
-    import matplotlib
+    import matplotlib  # heavy: matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: matplotlib
 
-    from prl.rn import key_dimensions
+    from prl.rn_decode import key_dimensions
 
     if not probs_by_task:
         raise ValueError("probs_by_task is empty; give at least one task")
@@ -110,10 +110,10 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
     band from the lowest to the highest seed. ``curves[variant]`` is one list of rows per seed (the LN's
     per-update rows, first point at the end of the first update); seeds are aligned on their common ``x_key``
     range by linear interpolation. ``log_x`` puts ``x_key`` on a log scale (budgets that differ by 100x)."""
-    import matplotlib
+    import matplotlib  # heavy: matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: matplotlib
 
     if not curves:
         raise ValueError("curves is empty; give at least one variant")

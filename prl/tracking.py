@@ -40,7 +40,7 @@ def configure(experiment: str = "prl") -> str:
     Creates the experiment with an absolute artifact location beside the store
     when it does not exist yet.
     """
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     uri = resolve_tracking_uri()
     mlflow.set_tracking_uri(uri)
@@ -71,7 +71,7 @@ def flatten_params(cfg: Any, prefix: str = "") -> dict[str, str]:
 @contextlib.contextmanager
 def parent_run(name: str, params: Any = None, tags: Mapping[str, str] | None = None) -> Iterator[Any]:
     """Start a top-level run (ending any stray active run first) and log ``params``."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     while mlflow.active_run() is not None:
         mlflow.end_run()
@@ -84,7 +84,7 @@ def parent_run(name: str, params: Any = None, tags: Mapping[str, str] | None = N
 @contextlib.contextmanager
 def child_run(name: str, params: Any = None, parent_run_id: str | None = None) -> Iterator[Any]:
     """Start a nested run under the active run (or under ``parent_run_id``)."""
-    import mlflow
+    import mlflow  # heavy: mlflow
 
     tags = {"mlflow.parentRunId": parent_run_id} if parent_run_id else None
     with mlflow.start_run(run_name=name, nested=parent_run_id is None, tags=tags) as run:

@@ -8,9 +8,11 @@ from contextlib import contextmanager
 from typing import Any
 
 import gymnasium as gym
+import torch
+from mani_skill.utils.registration import REGISTERED_ENVS
 
 from envs.tasks import grasp_probe, hammer, sweep, tweeze, unscrew  # noqa: F401  (registers PRL-GraspProbe-v1 and the PRL tasks)
-from envs.tasks.base import PRLTaskEnv, physics_sim_config
+from envs.tasks.base import DEFAULT_ENV_KWARGS, PRLTaskEnv, physics_sim_config
 
 TASK_ENV_IDS: dict[str, str] = {
     "hammer": "PRL-Hammer-v1",
@@ -20,21 +22,10 @@ TASK_ENV_IDS: dict[str, str] = {
 }
 """Short task name -> registered ManiSkill environment id."""
 
-DEFAULT_ENV_KWARGS: dict[str, Any] = {
-    "num_envs": 1,
-    "sim_backend": "physx_cpu",
-    "render_mode": None,
-    "obs_mode": "state_dict",
-    "robot_uids": "prl_hand",
-}
-"""Defaults for ``make_env``: one CPU-simulated scene, no rendering, the PRL hand."""
-
-
 def task_class(task: str) -> type[PRLTaskEnv]:
     """The environment class of ``task``; ``ValueError`` naming it when unknown."""
     if task not in TASK_ENV_IDS:
         raise ValueError(f"unknown task {task!r}; known tasks: {sorted(TASK_ENV_IDS)}")
-    from mani_skill.utils.registration import REGISTERED_ENVS
 
     return REGISTERED_ENVS[TASK_ENV_IDS[task]].cls
 
@@ -47,7 +38,6 @@ def make_env(task: str, **kwargs: Any) -> gym.Env:
     """
     if task not in TASK_ENV_IDS:
         raise ValueError(f"unknown task {task!r}; known tasks: {sorted(TASK_ENV_IDS)}")
-    import torch
 
     defaults = DEFAULT_ENV_KWARGS | {"render_backend": "gpu" if torch.cuda.is_available() else "cpu"}
     return gym.make(TASK_ENV_IDS[task], **(defaults | kwargs))

@@ -27,9 +27,9 @@ from mani_skill.utils.structs import Actor
 from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
 from sapien import physx
 
-from envs.executor import StageSpec
 from prl.constants import SIM_FREQ
 from prl.geometry import rot_z
+from prl.stages import StageSpec
 
 Box = tuple[np.ndarray, np.ndarray]
 """An axis-aligned box in some frame: (center (3,), half_extents (3,)), metres."""
@@ -45,6 +45,15 @@ SOLVER_POSITION_ITERATIONS = 20
 converged reference (1000 Hz, 50 iterations, same 3 s) on success in 195, as often as the former
 500 Hz / 25 did (195), at half its cost per attempt; no blow-up, the same tool slip in the hand during the
 carry (median 0.4 mm). 250 Hz / 12 and 200 Hz / 10 were cheaper and agreed less (191, 192)."""
+
+DEFAULT_ENV_KWARGS: dict[str, Any] = {
+    "num_envs": 1,
+    "sim_backend": "physx_cpu",
+    "render_mode": None,
+    "obs_mode": "state_dict",
+    "robot_uids": "prl_hand",
+}
+"""Defaults for ``envs.tasks.make_env`` (and the grasp probe's): one CPU-simulated scene, no rendering, the PRL hand."""
 
 
 def physics_sim_config(sim_freq: int = SIM_FREQ, position_iterations: int = SOLVER_POSITION_ITERATIONS) -> SimConfig:
@@ -109,7 +118,7 @@ class PRLTaskEnv(BaseEnv):
     """A hand-designed plan that should succeed on most randomised scenes (a reference, not a label)."""
     stages: ClassVar[StageSpec]
     """The executor stages this task runs, their time shares, where T_fv meets the object and what follows
-    the motion (``envs.executor.StageSpec``): data, so the executor needs no per-task branch."""
+    the motion (``prl.stages.StageSpec``): data, so the executor needs no per-task branch."""
     tool: Actor
     """The tool: one dynamic rigid actor held by contact and friction only."""
     tool_gv_local: Box

@@ -3,7 +3,7 @@
 Not one of the paper's tasks (it is not in ``TASK_ENV_IDS`` and never enters the pipeline): it is
 the bench on which each catalogue grasp pattern (``assets/plb.yaml`` ``grasp_patterns``) is checked
 against the kind of object it is meant for, by contact alone. A pattern's name is a physical law
-of this project, so a posture of ``envs.executor.GRASP_POSTURES`` is right only if, closed on its
+of this project, so a posture of ``prl.stages.GRASP_POSTURES`` is right only if, closed on its
 object and lifting it, it touches the sensors that make ``prl.labels.grasp_label`` return it.
 """
 
@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import gymnasium as gym
 import numpy as np
 import sapien
 import torch
 from mani_skill.utils.registration import register_env
 from sapien import physx
 
-from envs.executor import StageSpec
-from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy
+from envs.tasks.base import DEFAULT_ENV_KWARGS, PRLTaskEnv, pose_from_matrix, pose_to_numpy
+from prl.stages import StageSpec
 
 #: Reference objects: kind -> the pattern it is for, the half extents of its box (capsule: half-length,
 #: radius, radius; disk: radius, half-height, radius), its mass (kg) and the reference plan that grasps and
@@ -50,10 +51,6 @@ PROBE_ENV_ID = "PRL-GraspProbe-v1"
 
 def make_probe_env(kind: str, **kwargs: Any) -> Any:
     """The grasp probe with reference object ``kind`` (one CPU scene, like ``envs.tasks.make_env``)."""
-    import gymnasium as gym
-
-    from envs.tasks import DEFAULT_ENV_KWARGS
-
     return gym.make(PROBE_ENV_ID, **(DEFAULT_ENV_KWARGS | {"render_backend": "cpu"} | kwargs), object_kind=kind)
 
 

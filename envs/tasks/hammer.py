@@ -12,7 +12,6 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
-from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.shapes import (
     HANDLE_HALF_LENGTH,
@@ -25,6 +24,7 @@ from prl.shapes import (
     NAIL_SHANK_RADIUS,
     SIZE_SCALE_RANGE,
 )
+from prl.stages import StageSpec
 
 # --- nominal geometry (metres); the randomised ones are scaled per episode --------------------------
 # handle, head and nail sizes: defined once in prl.shapes (which rebuilds the meshes for PointNet)

@@ -12,7 +12,6 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor
 from sapien import physx
 
-from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.geometry import rot_z
 from prl.shapes import (
@@ -22,6 +21,7 @@ from prl.shapes import (
     DEBRIS_CUBE_SIZE_RANGE,
     SWEEP_CLEARANCE,
 )
+from prl.stages import StageSpec
 
 # --- nominal geometry (metres): broom and cube sizes are defined once in prl.shapes; scaled per episode -
 SIZE_SCALE_RANGE = (0.9, 1.1)

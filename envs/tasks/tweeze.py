@@ -12,7 +12,6 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
-from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.geometry import rot_y, rot_z
 from prl.shapes import (
@@ -22,6 +21,7 @@ from prl.shapes import (
     TWEEZERS_LINK_IN_FRAME,
     tweezers_arm_angle,
 )
+from prl.stages import StageSpec
 
 # --- randomised geometry and physics (metres, kilograms, newtons) --------------------------------
 ARM_LENGTH_RANGE = (0.15, 0.17)
@@ -29,7 +29,7 @@ ARM_LENGTH_RANGE = (0.15, 0.17)
 TIP_GAP_RANGE = (0.040, 0.046)
 """Gap between the tips' inner faces when the spring holds the tweezers open."""
 SPRING_STIFFNESS_RANGE = (1.0, 2.0)
-"""Hinge spring, N m/rad: a drive with stiffness toward the open angle (DESIGN sec. 9); shut, the tips press
+"""Hinge spring, N m/rad: a drive with stiffness toward the open angle (docs/design.md "Mechanisms as drives"); shut, the tips press
 0.2-0.5 N m back against the fingers, which press with up to 1.5-2 N m per joint (``envs/agents/prl_hand.py``)."""
 SPRING_DAMPING = 1.0
 """Hinge damping, N m s/rad. Undamped, a saturated pinch swung the 10 g arm shut at ~4 rad/s and the tip struck

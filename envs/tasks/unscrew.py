@@ -12,13 +12,13 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Articulation, Link
 from sapien import physx
 
-from envs.executor import StageSpec
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix
 from prl.shapes import (  # the cap on a narrow neck, its top 1 mm proud
     CAP_CENTER_HEIGHT,
     CAP_TOP_PROUD,
     NECK_RADIUS,
 )
+from prl.stages import StageSpec
 
 # --- nominal geometry (metres) -----------------------------------------------------------------------
 CAP_RADIUS_RANGE = (0.032, 0.038)
@@ -59,7 +59,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
     the bottle) whose child link, the cap, turns on a ``revolute_unwrapped`` joint about the bottle's axis. The
     thread is a zero-stiffness velocity drive with a force limit: it holds up to a breakaway torque and then
     lets the cap turn, however hard the hand squeezes (PhysX joint friction would scale with the squeeze,
-    DESIGN sec. 9). The cap's side is knurled (friction 0.9-1.4); its top is a smooth disc (friction 0.05)
+    docs/design.md "Mechanisms as drives"). The cap's side is knurled (friction 0.9-1.4); its top is a smooth disc (friction 0.05)
     standing 1 mm proud, so a palm that only presses on the top and turns does not open it.
 
     The RS reads here: the tool is the cap (T_gv = the cap's side, where the fingers grip; T_fv = the cap as

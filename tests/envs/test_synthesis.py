@@ -1,0 +1,162 @@
+"""Scene synthesis: seeds independent of workers, yield bookkeeping, and resume after a kill."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from envs.synthesis import ShardSpec, attempt_seeds, read_attempts, split_successes
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_split_and_seeds() -> None:
+    assert split_successes(10, 4) == [3, 3, 2, 2]
+    assert split_successes(2, 3) == [1, 1, 0]
+    with pytest.raises(ValueError, match="n_shards must be > 0, got 0"):
+        split_successes(5, 0)
+    assert attempt_seeds(0, "hammer", 1, 2) == attempt_seeds(0, "hammer", 1, 2)
+    seeds = {attempt_seeds(0, "hammer", k, j)[0] for k in range(4) for j in range(50)}
+    assert len(seeds) == 200  # no two attempts share a scene
+    assert attempt_seeds(1, "hammer", 0, 0) != attempt_seeds(0, "hammer", 0, 0)
+
+
+def test_torn_attempt_line_is_dropped(tmp_path: Path) -> None:
+    (tmp_path / "attempts.jsonl").write_text('{"attempt": 0, "success": false}\n{"attempt": 1, "succ')
+    assert read_attempts(tmp_path) == [{"attempt": 0, "success": False}]
+
+
+def test_bad_spec_values() -> None:
+    with pytest.raises(ValueError, match="n_success must be >= 0, got -1"):
+        ShardSpec("hammer", 0, -1, 0, Path("/tmp"))
+
+
+_CHILD = """
+import sys
+from pathlib import Path
+import envs
+from envs.synthesis import ShardSpec, run_shard
+run_shard(ShardSpec("hammer", 0, 3, 11, Path(sys.argv[1])))
+"""
+
+
+def _rows(out: Path) -> list[dict]:
+    return read_attempts(out / "hammer" / "shard000")
+
+
+@pytest.mark.sim
+def test_killed_shard_resumes_without_loss_or_duplicates(tmp_path: Path) -> None:
+    import envs  # noqa: F401
+    from envs.synthesis import run_shard
+    from prl.demo import load_demo
+
+    clean = run_shard(ShardSpec("hammer", 0, 3, 11, tmp_path / "clean"))
+    assert clean.successes == 3 and len(clean.demo_paths) == 3
+
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(out)], cwd=REPO, env=dict(os.environ),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    shard = out / "hammer" / "shard000"
+    while time.time() < deadline and not list(shard.glob("ep*.npz")):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    before = sorted(p.name for p in shard.glob("ep*.npz"))
+    assert 1 <= len(before) < 3, "kill should land after the first demo and before the last"
+    first = {p.name: p.read_bytes() for p in shard.glob("ep*.npz")}
+
+    resumed = run_shard(ShardSpec("hammer", 0, 3, 11, out))
+    assert resumed.successes == 3
+    # every finished demo survived byte for byte, none was redone or duplicated
+    for name, data in first.items():
+        assert (shard / name).read_bytes() == data
+    assert [p.name for p in resumed.demo_paths] == [p.name for p in clean.demo_paths]
+    keys = ("attempt", "seed", "plan", "success")
+    assert [[r[k] for k in keys] for r in _rows(out)] == [[r[k] for k in keys] for r in _rows(tmp_path / "clean")]
+    assert len({r["attempt"] for r in _rows(out)}) == len(_rows(out))
+    assert load_demo(resumed.demo_paths[-1]).success
+    assert not list(shard.glob(".*.tmp"))
+    json.dumps(_rows(out))
+
+
+def test_fast_resets_freezes_the_heap_and_always_unfreezes() -> None:
+    import gc
+
+    from envs.tasks import fast_resets
+
+    with fast_resets():
+        assert gc.get_freeze_count() > 1000  # torch, mani_skill, pytest: far more than a few objects
+        frozen = gc.get_freeze_count()
+        with pytest.raises(RuntimeError, match="boom"), fast_resets():
+            raise RuntimeError("boom")
+        # the inner block left the outer one's freeze alone (neither unfroze the heap nor froze more); a frozen
+        # object may still be freed by its refcount meanwhile, so the count can drop by a few
+        assert frozen - 50 <= gc.get_freeze_count() <= frozen
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(KeyError), fast_resets():
+        raise KeyError("x")
+    assert gc.get_freeze_count() == 0
+
+
+def test_worker_env_passes_a_set_api_url_on() -> None:
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    from flows.synthesize import worker_env
+
+    with temporary_settings({PREFECT_API_URL: "http://10.1.2.3:4200/api/"}):
+        assert worker_env() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api", "DASK_LOGGING__DISTRIBUTED": "warning"}
+
+
+def _worker_api_url() -> str:
+    from prefect.client.orchestration import get_client
+
+    with get_client(sync_client=True) as client:
+        return str(client.api_url).rstrip("/")
+
+
+@pytest.mark.sim
+def test_local_dask_workers_report_to_this_process_api() -> None:
+    """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own."""
+    import httpx
+    from prefect import flow, task
+    from prefect.settings import PREFECT_API_URL
+
+    from flows.synthesize import make_task_runner
+
+    if PREFECT_API_URL.value():
+        pytest.skip(f"PREFECT_API_URL is set ({PREFECT_API_URL.value()}): no temporary server to share")
+    worker_task = task(_worker_api_url, name="worker-api-url")
+
+    @flow(task_runner=make_task_runner(2, None))
+    def probe() -> list[str]:
+        return [f.result() for f in [worker_task.submit(), worker_task.submit()]]
+
+    urls = probe()
+    here = _worker_api_url()
+    assert urls == [here, here]
+    assert here.startswith("http://127.0.0.1:")
+    assert httpx.get(here + "/health", timeout=10).status_code == 200
+
+
+@pytest.mark.sim
+def test_same_seed_gives_identical_bytes_in_two_processes(tmp_path: Path) -> None:
+    """Two fresh interpreters run the same shard side by side: every demo file and the attempt log agree
+    byte for byte (the physics, the plan sampling and the file format are all deterministic)."""
+    outs = [tmp_path / "a", tmp_path / "b"]
+    procs = [subprocess.Popen([sys.executable, "-c", _CHILD, str(out)], cwd=REPO, env=dict(os.environ),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE) for out in outs]
+    for proc in procs:
+        _, err = proc.communicate(timeout=600)
+        assert proc.returncode == 0, err.decode()[-2000:]
+    files = [sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) for out in outs]
+    assert files[0] == files[1] and len(files[0]) == 4  # attempts.jsonl + 3 demos
+    for rel in files[0]:
+        assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel

@@ -1,0 +1,339 @@
+"""LeRobot export: round trip through ``LeRobotDataset``, atomic replacement, clear errors.
+
+Fast tests use synthetic demos (random arrays saved with ``prl.demo.save_demo``); the ``sim``
+tests export demos of real simulated episodes and reload them with lerobot.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("lerobot")
+
+from prl.constants import N_JOINTS, N_SENSORS, RECORD_HZ
+from prl.export import export_key, export_lerobot, reusable_export
+from prl.export_check import validate_lerobot
+from prl.export_schema import (
+    EXPORT_KEY_FILE,
+    FEATURES,
+    NO_LABEL,
+    ExportError,
+    episode_frames,
+    lerobot_features,
+)
+
+REPO_ID = "prl/hammer-test"
+TEXT = "Hammer the nail down into the block."
+
+
+@pytest.fixture(autouse=True)
+def _private_datasets_cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Reloading makes ``datasets`` copy the parquet files into its cache: keep those copies out of ~/.cache."""
+    import datasets
+
+    monkeypatch.setattr(datasets.config, "HF_DATASETS_CACHE", tmp_path_factory.mktemp("hf_datasets_cache"))
+
+
+def _load_dataset(root: Path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset(REPO_ID, root=root)
+
+
+def _synthetic_demo(seed: int, t: int):
+    from prl.demo import X_MANIP_DIM, Demo
+
+    rng = np.random.default_rng(seed)
+    arrays = {
+        "plan": rng.integers(0, 4, 6).astype(np.int64), "frame": np.arange(t) * 5,
+        "stage": np.repeat(np.arange(7), -(-t // 7))[:t].astype(np.int64),
+        "qpos": rng.normal(size=(t, N_JOINTS)), "qvel": rng.normal(size=(t, N_JOINTS)),
+        "target": rng.normal(size=(t, N_JOINTS)), "force": rng.random((t, N_SENSORS)),
+        "contact_pos": rng.normal(size=(t, N_SENSORS, 3)), "contact_normal": rng.normal(size=(t, N_SENSORS, 3)),
+        "palm_pose": rng.normal(size=(t, 7)), "tool_pose": rng.normal(size=(t, 7)),
+        "object_pose": rng.normal(size=(t, 7)), "anchors_at_grasp": rng.normal(size=(6, 3)),
+        "gv_center": np.zeros(3), "gv_half": np.ones(3), "gv_rot": np.eye(3), "tool_gv_local": np.zeros(9),
+        "tool_fv_local": np.zeros(9), "x_manip": rng.normal(size=X_MANIP_DIM).astype(np.float32),
+    }
+    return Demo(task="hammer", seed=seed, text=f"{TEXT} ({seed})", success=True, outcome={}, scene_params={},
+                arrays=arrays)
+
+
+@pytest.fixture
+def synthetic_paths(tmp_path: Path) -> list[Path]:
+    from prl.demo import save_demo
+
+    return [save_demo(_synthetic_demo(seed, t), tmp_path / "demos" / f"ep{seed}.npz")
+            for seed, t in ((1, 23), (2, 17))]
+
+
+def _truncated_copy(src: Path, dst: Path) -> Path:
+    data = src.read_bytes()
+    dst.write_bytes(data[: len(data) // 2])
+    return dst
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    return {str(f.relative_to(root)): f.read_bytes() for f in sorted(root.rglob("*")) if f.is_file()}
+
+
+def _dead_pid() -> int:
+    """The id of a process that has exited (a killed exporter)."""
+    out = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], check=True,
+                         capture_output=True, text=True)
+    return int(out.stdout)
+
+
+def _siblings(root: Path) -> list[str]:
+    return sorted(p.name for p in root.parent.iterdir() if p.name.startswith(f".{root.name}."))
+
+
+# ----------------------------------------------------------------------------- fast tier
+
+
+def test_features_declared_once_and_frames_match() -> None:
+    assert lerobot_features().keys() == FEATURES.keys()
+    assert lerobot_features()["observation.state"]["shape"] == (60,)
+    demo = _synthetic_demo(3, 11)
+    frames = episode_frames(demo, label=[1, 2, 3, 0, 0, 1])
+    for name, spec in FEATURES.items():
+        assert frames[name].dtype == np.dtype(spec["dtype"]), name
+        assert frames[name].shape == (11, *spec["shape"]), name
+    np.testing.assert_array_equal(frames["observation.contact_position"][4], demo.contact_pos[4].reshape(-1)
+                                  .astype(np.float32))
+    assert frames["label"][7].tolist() == [1, 2, 3, 0, 0, 1]
+    assert episode_frames(demo)["label"][0].tolist() == [NO_LABEL] * 6
+    with pytest.raises(ValueError, match="label must have shape"):
+        episode_frames(demo, label=[1, 2])
+
+
+def test_no_demo_paths_is_an_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="no demo paths"):
+        export_lerobot([], tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_missing_demo_is_named_and_nothing_written(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    missing = tmp_path / "demos" / "nope.npz"
+    with pytest.raises(FileNotFoundError, match="nope.npz"):
+        export_lerobot([synthetic_paths[0], missing], tmp_path / "out" / "ds")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unusable_destination(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    with pytest.raises(NotADirectoryError, match="not a directory"):
+        export_lerobot(synthetic_paths, a_file)
+    with pytest.raises(NotADirectoryError, match="not a directory"):
+        export_lerobot(synthetic_paths, a_file / "ds")
+    other = tmp_path / "someone_elses"
+    other.mkdir()
+    (other / "keep.txt").write_text("precious")
+    with pytest.raises(ValueError, match="not a LeRobot dataset"):
+        export_lerobot(synthetic_paths, other)
+    assert (other / "keep.txt").read_text() == "precious"
+
+
+def test_validate_refuses_a_non_dataset_without_creating_it(tmp_path: Path) -> None:
+    with pytest.raises(ExportError, match="not a directory"):
+        validate_lerobot(tmp_path / "absent", REPO_ID)
+    assert not (tmp_path / "absent").exists()  # lerobot alone would mkdir it and go to the Hub
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ExportError, match="info.json"):
+        validate_lerobot(tmp_path / "empty", REPO_ID)
+
+
+def test_synthetic_round_trip_and_stale_staging_cleanup(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    from prl.demo import load_demo
+
+    root = tmp_path / "out" / "ds"
+    stale = root.parent / f".{root.name}.staging-{_dead_pid()}"
+    (stale / "meta").mkdir(parents=True)  # left by a killed export
+    report = export_lerobot(synthetic_paths, root, repo_id=REPO_ID, per_episode_label={2: [0, 1, 2, 3, 4, 5]})
+    assert report.n_episodes == 2 and report.episode_lengths == (23, 17) and report.n_frames == 40
+    assert report.n_labelled == 1 and report.checked_against_demos
+    assert _siblings(root) == []
+    ds = _load_dataset(root)
+    d1 = load_demo(synthetic_paths[1])
+    item = ds[23 + 5]
+    assert int(item["episode_index"]) == 1 and int(item["frame_index"]) == 5
+    np.testing.assert_allclose(item["observation.state"].numpy(), np.concatenate([d1.qpos[5], d1.qvel[5]]),
+                               rtol=1e-6, atol=1e-6)
+    assert item["label"].tolist() == [0, 1, 2, 3, 4, 5]
+    assert ds[0]["label"].tolist() == [NO_LABEL] * 6
+    assert item["task"] == d1.text
+
+
+def test_export_key_and_reuse(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    labels = {str(synthetic_paths[0]): [0, 1, 2, 3, 0, 1]}
+    key = export_key(synthetic_paths, labels, REPO_ID, 100, "v1")
+    assert key == export_key(list(synthetic_paths), dict(labels), REPO_ID, 100, "v1")  # a pure function
+    changed = {  # every input the dataset is made from changes the key
+        export_key(synthetic_paths[::-1], labels, REPO_ID, 100, "v1"),
+        export_key(synthetic_paths, {str(synthetic_paths[0]): [0, 1, 2, 3, 0, 2]}, REPO_ID, 100, "v1"),
+        export_key(synthetic_paths, labels, "prl/other", 100, "v1"),
+        export_key(synthetic_paths, labels, REPO_ID, 50, "v1"),
+        export_key(synthetic_paths, labels, REPO_ID, 100, "v2"),
+    }
+    assert key not in changed and len(changed) == 5
+    root = tmp_path / "ds"
+    assert reusable_export(root, REPO_ID, key) is None  # nothing there yet
+    first = export_lerobot(synthetic_paths, root, repo_id=REPO_ID, per_episode_label=labels, key=key)
+    assert (root / EXPORT_KEY_FILE).read_text().strip() == key and not first.reused
+    again = reusable_export(root, REPO_ID, key)
+    assert again is not None and again.reused and again.n_episodes == 2 and again.n_frames == first.n_frames
+    assert reusable_export(root, REPO_ID, "another-key") is None
+    # a demo file whose bytes changed gives a new key
+    tampered = tmp_path / "tampered" / synthetic_paths[1].name
+    tampered.parent.mkdir()
+    raw = bytearray(synthetic_paths[1].read_bytes())
+    raw[-1] ^= 1
+    tampered.write_bytes(bytes(raw))
+    assert export_key([synthetic_paths[0], tampered], labels, REPO_ID, 100, "v1") != key
+    # a damaged dataset with a matching key is an error, not a silent reuse
+    for f in (root / "data").glob("*/*.parquet"):
+        f.write_bytes(b"not parquet")
+    with pytest.raises(ExportError, match="unreadable"):
+        reusable_export(root, REPO_ID, key)
+
+
+def test_failed_validation_keeps_existing_dataset(tmp_path: Path, synthetic_paths: list[Path],
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    from prl import export
+
+    root = tmp_path / "ds"
+    export_lerobot(synthetic_paths, root, repo_id=REPO_ID)
+    before = _snapshot(root)
+    seen = []
+
+    def failing_validation(staging, repo_id, **kwargs):
+        seen.append(Path(staging))
+        assert (Path(staging) / "meta" / "info.json").is_file()  # written and finalized, not yet in place
+        raise ExportError("simulated validation failure")
+
+    monkeypatch.setattr(export, "validate_lerobot", failing_validation)
+    with pytest.raises(ExportError, match="simulated"):
+        export_lerobot(synthetic_paths[:1], root, repo_id=REPO_ID)
+    assert seen and seen[0].parent == root.parent and seen[0] != root
+    assert _snapshot(root) == before and _siblings(root) == []
+
+
+def test_dataset_set_aside_by_a_killed_export_is_restored(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    root = tmp_path / "ds"
+    export_lerobot(synthetic_paths, root, repo_id=REPO_ID)
+    before = _snapshot(root)
+    root.rename(root.parent / f".{root.name}.old-{_dead_pid()}")  # killed between the two renames
+    corrupt = _truncated_copy(synthetic_paths[0], tmp_path / "corrupt.npz")
+    with pytest.raises(ValueError, match="corrupt.npz"):
+        export_lerobot([corrupt], root, repo_id=REPO_ID)
+    assert _snapshot(root) == before and _siblings(root) == []
+
+
+# ----------------------------------------------------------------------------- simulation tier
+
+
+@pytest.fixture(scope="module")
+def sim_demos(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Three real demos (1/5 of the paper's episode length to keep it quick), successful or not."""
+    pytest.importorskip("mani_skill")
+    import envs  # noqa: F401
+    from envs.execution import ExecutorConfig
+    from envs.executor import PlanExecutor
+    from envs.tasks import make_env
+    from prl.demo import from_episode, save_demo
+    from prl.plb import load_plb
+
+    texts = load_plb().texts("hammer")
+    out = tmp_path_factory.mktemp("sim_demos")
+    env = make_env("hammer")
+    try:
+        executor = PlanExecutor(env, ExecutorConfig(n_frames=300))
+        paths = []
+        for k, (plan, seed) in enumerate((([0, 3, 2, 0, 0, 1], 3), ([1, 4, 2, 0, 0, 1], 4), ([0, 3, 1, 1, 0, 1], 5))):
+            result = executor.run(plan, seed=seed)
+            demo = from_episode("hammer", seed, texts[k % len(texts)], result, env)
+            paths.append(save_demo(demo, out / f"ep{seed}.npz"))
+    finally:
+        env.close()
+    return paths
+
+
+@pytest.mark.sim
+def test_export_reload_matches_demos(tmp_path: Path, sim_demos: list[Path]) -> None:
+    from prl.demo import load_demo
+
+    demos = [load_demo(p) for p in sim_demos]
+    label = [5, 4, 3, 2, 1, 0]
+    root = tmp_path / "lerobot" / "hammer"
+    report = export_lerobot(sim_demos, root, repo_id=REPO_ID, per_episode_label={sim_demos[1]: label})
+    assert report.root == root and report.n_labelled == 1
+    assert _siblings(root) == []
+
+    ds = _load_dataset(root)
+    assert ds.num_episodes == len(demos) == 3
+    lengths = [int(v) for v in ds.meta.episodes["length"]]
+    assert lengths == [len(d.stage) for d in demos] == list(report.episode_lengths)
+    assert len(ds) == sum(lengths) == report.n_frames
+    assert [t[0] for t in ds.meta.episodes["tasks"]] == [d.text for d in demos]
+    assert ds.fps == RECORD_HZ == 50 and ds.meta.info.codebase_version == "v3.0"
+
+    starts = np.concatenate([[0], np.cumsum(lengths)])
+    for e, demo in enumerate(demos):
+        for k in (0, lengths[e] // 2, lengths[e] - 1):
+            item = ds[int(starts[e]) + k]
+            assert int(item["episode_index"]) == e and int(item["frame_index"]) == k
+            np.testing.assert_allclose(item["observation.state"].numpy(),
+                                       np.concatenate([demo.qpos[k], demo.qvel[k]]), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(item["action"].numpy(), demo.target[k], rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(item["observation.contact_position"].numpy(),
+                                       demo.contact_pos[k].reshape(-1), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(item["observation.tool_pose"].numpy(), demo.tool_pose[k], rtol=1e-6, atol=1e-6)
+            assert int(item["stage"]) == int(demo.stage[k])
+            assert item["plan"].tolist() == demo.plan.tolist()
+            assert item["label"].tolist() == (label if e == 1 else [NO_LABEL] * 6)
+            np.testing.assert_array_equal(item["x_manip"].numpy(), demo.x_manip)
+            assert item["task"] == demo.text
+
+    again = validate_lerobot(root, REPO_ID)
+    assert again.episode_lengths == report.episode_lengths and again.tasks == report.tasks
+
+
+@pytest.mark.sim
+def test_failed_export_leaves_good_dataset_untouched(tmp_path: Path, sim_demos: list[Path]) -> None:
+    root = tmp_path / "hammer"
+    export_lerobot(sim_demos, root, repo_id=REPO_ID)
+    before = _snapshot(root)
+    corrupt = _truncated_copy(sim_demos[0], tmp_path / "corrupt.npz")
+    with pytest.raises(ValueError, match="corrupt.npz"):
+        export_lerobot([sim_demos[1], corrupt], root, repo_id=REPO_ID)
+    assert _snapshot(root) == before
+    assert _siblings(root) == []
+    assert validate_lerobot(root, REPO_ID).n_episodes == 3
+
+    # a successful re-export replaces it as a whole
+    report = export_lerobot(sim_demos[:2], root, repo_id=REPO_ID)
+    assert report.n_episodes == 2 and _load_dataset(root).num_episodes == 2
+    assert _siblings(root) == []
+
+
+def test_export_cache_version_covers_the_export_sources_only() -> None:
+    import hashlib
+
+    from flows.export_dataset import EXPORT_SOURCES
+    from prl.constants import REPO_ROOT
+    from prl.version import source_version
+
+    expected = hashlib.sha256()
+    for rel in EXPORT_SOURCES:
+        expected.update(rel.encode())
+        expected.update((REPO_ROOT / rel).read_bytes())
+    assert source_version(*EXPORT_SOURCES) == expected.hexdigest()[:16]
+    assert "prl/rn.py" not in EXPORT_SOURCES  # RN work does not invalidate the dataset
+    with pytest.raises(FileNotFoundError, match="'prl/nope.py'"):
+        source_version("prl/nope.py")
