@@ -19,6 +19,7 @@ import numpy as np
 from envs import ik
 from envs.execution import EpisodeResult
 from envs.hand_model import palm_anchors
+from envs.scene_record import SceneParts
 from envs.sensors import ContactSensors
 from envs.tasks.base import pose_from_matrix
 from prl.constants import N_ANCHORS, N_JOINTS, N_SENSORS
@@ -94,6 +95,8 @@ class Episode:
         self.palm_body = agent.palm_link._objs[0]
         self.tool_body = self.env.tool._bodies[0]
         self.sensors = ContactSensors(self.env.scene, agent.sensor_links, exclude=agent.robot)
+        self.parts = SceneParts(self.env)
+        """Every other body that moves (tool, debris, mechanisms), recorded each recorded frame for a replay."""
         self.spec: StageSpec = type(self.env).stages
         self.sim_freq = executor.sim_freq
         self._ahead: dict[str, np.ndarray] = {}
@@ -237,6 +240,8 @@ class Episode:
             "force": np.zeros((n_rec, N_SENSORS)), "contact_pos": np.zeros((n_rec, N_SENSORS, 3)),
             "contact_normal": np.zeros((n_rec, N_SENSORS, 3)), "palm_pose": np.zeros((n_rec, 7)),
             "tool_pose": np.zeros((n_rec, 7)), "object_pose": np.zeros((n_rec, 7)),
+            "scene_pose": np.zeros((n_rec, len(self.parts.bodies), 7)),
+            "scene_qpos": np.zeros((n_rec, len(self.parts.joints))),
         }
         lower, upper = self._limits()
         q_home = self._qpos()
@@ -270,6 +275,7 @@ class Episode:
                     gv_at_grasp = self.env.tool_gv_world()
                 stage = starts[frame]
                 stage_start = frame
+                self.env.on_stage_start(STAGES[stage])  # every task is told; a task may keep a reference
                 plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
             if moving.size:
                 target = plan_targets[frame - stage_start]
@@ -305,6 +311,8 @@ class Episode:
                 rec["palm_pose"][k] = sapien_pose7(self.palm_body.get_entity_pose())
                 rec["tool_pose"][k] = tool7
                 rec["object_pose"][k] = pose7(obj_p, obj_r)
+                rec["scene_pose"][k] = self.parts.poses()
+                rec["scene_qpos"][k] = self.parts.qpos()
                 k += 1
                 if blowup:
                     break
@@ -326,7 +334,8 @@ class Episode:
             plan=self.plan.copy(), outcome=outcome, success=success, anchors_at_grasp=anchors_at_grasp,
             gv_at_grasp=tuple(np.asarray(x).copy() for x in gv_at_grasp), stage_frames=frames,
             wall_time_s=wall, physics_time_s=physics_time, fps=(n if not blowup else n_stepped) / wall if wall > 0 else 0.0,
-            notes=self.notes, fault=self.fault, **rec,
+            notes=self.notes, fault=self.fault, scene_bodies=self.parts.bodies, scene_joints=self.parts.joints,
+            **rec,
         )
 
     def _stage_trajectory(self, stage: int, n_frames: int, waypoints: dict[int, np.ndarray],

@@ -124,3 +124,12 @@ class EpisodeResult:
     simulation), or one of ``FAULTS``; the details are in ``notes``."""
     x_manip: np.ndarray = field(default_factory=lambda: np.zeros(X_MANIP_DIM, np.float32))
     """(784,) features of the observation phase before the plan acted (``prl.demo`` layout)."""
+    scene_bodies: tuple[str, ...] = ()
+    """Names of the other bodies that move (``envs.scene_record.SceneParts``: non-static actors, then the
+    non-hand articulations' roots)."""
+    scene_joints: tuple[str, ...] = ()
+    """Names ``<articulation>/<joint>`` of the non-hand articulations' joints."""
+    scene_pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 7)))
+    """(T, bodies, 7) pose of each of ``scene_bodies`` at each record."""
+    scene_qpos: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """(T, joints) position of each of ``scene_joints`` at each record."""

@@ -82,9 +82,10 @@ class StagePictures:
     """Physics frame index each picture was taken after (-1 for the initial scene)."""
 
 
-def look_at(eye: np.ndarray, target: np.ndarray) -> Any:
-    """A ``sapien.Pose`` for a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target`` (Z up)."""
-    up = np.array([0.0, 0.0, 1.0])
+def look_at(eye: np.ndarray, target: np.ndarray, up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> Any:
+    """A ``sapien.Pose`` for a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target``, with
+    ``up`` (in the same frame; Z by default) pointing up in the picture."""
+    up = np.asarray(up, dtype=np.float64)
     eye = np.asarray(eye, dtype=np.float64)
     forward = np.asarray(target, dtype=np.float64) - eye
     forward /= np.linalg.norm(forward)

@@ -10,10 +10,11 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
 
+from envs.tasks import task_class
 from flows.synthesize import Synthesis
 from prl import tracking
 from prl.demo import load_demo
-from prl.label_recovery import agreement, format_agreement, recover_plan
+from prl.label_recovery import acted_mean, agreement, format_agreement, recover_plan
 from prl.plb import load_plb
 
 
@@ -50,14 +51,15 @@ def labels_stage(synthesis: Synthesis, code_version: str) -> Labels:
     """Recover every task's labels and log the agreement per Representation-Space dimension."""
     import mlflow  # heavy: mlflow
 
-
     plb = load_plb()
     by_task = {}
     with tracking.child_run("labels"):
         for name, paths in synthesis.demo_paths.items():
             by_task[name] = labels = recover_labels(name, paths, code_version)
             frac = agreement(np.array(labels["commanded"]), np.array(labels["recovered"]))
-            mlflow.log_metrics({f"{name}/agreement/{dim}": float(f) for dim, f in zip(plb.dim_names, frac)})
+            unacted = task_class(name).unacted_dims
+            mlflow.log_metrics({f"{name}/agreement/{dim}": float(f) for dim, f in zip(plb.dim_names, frac)}
+                               | {f"{name}/agreement/acted_mean": acted_mean(frac, plb, unacted)})
             mlflow.log_dict(labels, f"{name}_labels.json")
-            print(f"{name} label agreement:\n" + format_agreement(frac, len(paths), plb))
+            print(f"{name} label agreement:\n" + format_agreement(frac, len(paths), plb, unacted))
     return Labels(by_task)

@@ -39,10 +39,17 @@ X_MANIP_LAYOUT: tuple[tuple[str, int], ...] = (
 X_MANIP_DIM = X_MANIP_SAMPLES * sum(w for _, w in X_MANIP_LAYOUT)
 """Length of x_manip (784)."""
 
+SCENE_ARRAYS: tuple[str, ...] = ("scene_bodies", "scene_pose", "scene_joints", "scene_qpos")
+"""Every other body that moves, per record (``envs.scene_record``): ``scene_bodies`` (B,) names (the
+non-static actors, then the non-hand articulations' roots), ``scene_pose`` (T, B, 7), ``scene_joints`` (J,)
+names ``<articulation>/<joint>``, ``scene_qpos`` (T, J). With ``qpos`` they let a demo be rendered again
+without physics (``envs.video``). Demo files written before 2026-12-02 lack them: they still load, and
+what needs them names the missing arrays (:func:`require_arrays`)."""
+
 ARRAY_FIELDS: tuple[str, ...] = (
     "plan", "frame", "stage", "qpos", "qvel", "target", "force", "contact_pos", "contact_normal",
     "palm_pose", "tool_pose", "object_pose", "anchors_at_grasp", "gv_center", "gv_half", "gv_rot",
-    "tool_gv_local", "tool_fv_local", "x_manip",
+    "tool_gv_local", "tool_fv_local", "x_manip", *SCENE_ARRAYS,
 )
 
 
@@ -97,6 +104,10 @@ def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo
         "tool_fv_local": np.concatenate([np.asarray(x, dtype=np.float64) for x in env.tool_fv_local]),
     }
     arrays["x_manip"] = np.asarray(result.x_manip, dtype=np.float32)
+    arrays["scene_bodies"] = np.asarray(result.scene_bodies, dtype=np.str_).reshape(-1)
+    arrays["scene_pose"] = np.asarray(result.scene_pose, dtype=np.float64)
+    arrays["scene_joints"] = np.asarray(result.scene_joints, dtype=np.str_).reshape(-1)
+    arrays["scene_qpos"] = np.asarray(result.scene_qpos, dtype=np.float64)
     return Demo(task=task, seed=int(seed), text=text, success=bool(result.success),
                 outcome=dict(result.outcome), scene_params={k: float(v) for k, v in env.scene_params.items()},
                 arrays=arrays)
@@ -128,3 +139,13 @@ def load_demo(path: Path) -> Demo:
         raise ValueError(f"demo file {str(path)!r} lacks arrays {missing}")
     return Demo(task=header["task"], seed=int(header["seed"]), text=header["text"], success=bool(header["success"]),
                 outcome=header["outcome"], scene_params=header["scene_params"], arrays=arrays)
+
+
+def require_arrays(demo: Demo, names: tuple[str, ...], why: str, source: str | Path = "") -> None:
+    """ValueError naming the arrays of ``names`` that ``demo`` lacks (e.g. a file written before they were
+    recorded), what needs them (``why``) and the file (``source``)."""
+    missing = [name for name in names if name not in demo.arrays]
+    if missing:
+        where = f"demo file {str(source)!r}" if source else f"the demo of {demo.task} seed {demo.seed}"
+        raise ValueError(f"{where} lacks arrays {missing}, needed {why}; it was recorded before they were "
+                         f"(2026-12-02): synthesise it again")

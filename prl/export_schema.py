@@ -23,6 +23,18 @@ label                           (6,)         i64    recovered physical-law label
 x_manip                         (784,)       f32    observation-phase features (before the plan acts), constant
 ==============================  ===========  =====  ==============================================
 
+With video (:class:`VideoSpec`), two more features, one per camera of ``VIDEO_CAMERAS``:
+
+==============================  ===========  =====  ==============================================
+observation.images.front        (H, W, 3)    video  fixed scene camera (MP4, lerobot's encoder)
+observation.images.wrist        (H, W, 3)    video  camera on the palm, looking along the fingers
+==============================  ===========  =====  ==============================================
+
+The dataset's fps is the recording rate (``DEFAULT_FPS``, 50): lerobot gives every feature one rate, and
+the state stream keeps all its frames. The cameras take ``VideoSpec.fps`` pictures a second; each is held
+until the next (the latest picture, as lerobot's recorder reads a camera slower than its loop), so the MP4
+files have one frame per dataset frame. See docs/design.md "Dataset video".
+
 lerobot adds ``timestamp``, ``frame_index``, ``episode_index``, ``index`` and ``task_index``.
 
 Beside lerobot's files, ``SCENES_FILE`` holds one JSON line per episode with its scene
@@ -90,6 +102,59 @@ FEATURES: dict[str, dict[str, Any]] = {
 PER_EPISODE = ("plan", "label", "x_manip")
 """Features constant over an episode."""
 
+VIDEO_CAMERAS: tuple[str, ...] = ("front", "wrist")
+"""Cameras of a dataset with video: a fixed scene camera and one on the hand (``envs.video``)."""
+
+
+def video_key(camera: str) -> str:
+    """The feature name of ``camera``'s video (lerobot's convention ``observation.images.<camera>``)."""
+    return f"observation.images.{camera}"
+
+
+@dataclass(frozen=True)
+class VideoSpec:
+    """Camera video in an export: picture size and how many pictures a second (the rest are held)."""
+
+    width: int = 128
+    """Picture width, pixels."""
+    height: int = 128
+    """Picture height, pixels."""
+    fps: int = 10
+    """Camera pictures per second, a divisor of the dataset's ``DEFAULT_FPS``; each is held for
+    ``DEFAULT_FPS // fps`` dataset frames."""
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 16 <= value <= 4096 or value % 2:
+                raise ValueError(f"video {name} must be an even number of pixels in 16..4096, got {value!r}")
+        if isinstance(self.fps, bool) or not isinstance(self.fps, int) or self.fps <= 0 or DEFAULT_FPS % self.fps:
+            divisors = [d for d in range(1, DEFAULT_FPS + 1) if DEFAULT_FPS % d == 0]
+            raise ValueError(f"video fps must divide the dataset's {DEFAULT_FPS} fps (one of {divisors}), "
+                             f"got {self.fps!r}")
+
+    @property
+    def hold(self) -> int:
+        """Dataset frames each camera picture is shown for."""
+        return DEFAULT_FPS // self.fps
+
+    def records(self, n_frames: int) -> np.ndarray:
+        """The frames (records of the demo) that get a new picture: 0, hold, 2 hold, ..."""
+        return np.arange(0, n_frames, self.hold)
+
+    def expand(self, pictures: np.ndarray, n_frames: int) -> np.ndarray:
+        """(n_frames, H, W, 3): each of ``pictures`` (taken at :meth:`records`) held until the next."""
+        out = np.repeat(np.asarray(pictures), self.hold, axis=0)[:n_frames]
+        if out.shape != (n_frames, self.height, self.width, 3) or out.dtype != np.uint8:
+            raise ValueError(f"camera pictures expand to {out.shape} {out.dtype}, expected "
+                             f"{(n_frames, self.height, self.width, 3)} uint8")
+        return out
+
+    def features(self) -> dict[str, dict[str, Any]]:
+        """The lerobot feature spec of each camera's video."""
+        return {video_key(c): {"dtype": "video", "shape": (self.height, self.width, 3),
+                               "names": ["height", "width", "channels"]} for c in VIDEO_CAMERAS}
+
 
 class ExportError(RuntimeError):
     """An export or a validation failed; the message says what and where."""
@@ -123,13 +188,19 @@ class ExportReport:
     """True when episodes were compared with their demos (lengths, tasks, plan, label, a state)."""
     reused: bool = False
     """True when an identical earlier export was found, reloaded and validated instead of rewritten."""
+    video_codec: str | None = None
+    """The cameras' video codec as ``meta/info.json`` records it (e.g. ``av1``); None without video."""
+    video_seconds: float = 0.0
+    """Part of ``seconds`` spent rendering the cameras' pictures (the encoding is in lerobot's episode save)."""
 
 
-def lerobot_features() -> dict[str, dict[str, Any]]:
-    """A fresh copy of ``FEATURES`` for ``LeRobotDataset.create`` (which must not alias ours)."""
+def lerobot_features(video: VideoSpec | None = None) -> dict[str, dict[str, Any]]:
+    """A fresh copy of ``FEATURES`` (and with ``video`` the cameras' features) for ``LeRobotDataset.create``
+    (which must not alias ours)."""
+    specs = {**FEATURES, **(video.features() if video is not None else {})}
     return {name: {**spec, "shape": tuple(spec["shape"]),
                    "names": list(spec["names"]) if spec["names"] is not None else None}
-            for name, spec in FEATURES.items()}
+            for name, spec in specs.items()}
 
 
 def episode_frames(demo: Any, label: np.ndarray | None = None) -> dict[str, np.ndarray]:

@@ -28,17 +28,22 @@ Which recorded frames each dimension uses, and why (stage indices are ``prl.stag
   a1 on 7/10 of the successful samples instead of 10/10 each. A palm that lands on the handle
   during the approach (ok/ep507) rolls it by 20+ deg before the fingers close.
 * **a2 (Eq 5)** -- ``relative_position_label`` on the T_gv box and the six palm anchors at the same
-  **pre-contact record** as a0/a1: the relative position is a pre-grasp law, and the fingers move the
-  tool while they close (on 2,000 executor-v2 hammer demos the handle moved a median of 9 mm in the
-  palm during the grasp stage; Eq 5 agreed with the commanded anchor on 56% of them at the end of the
-  grasp, on 74% before contact). The recording
+  **pre-contact record** as a0/a1, with T_gv's faces turned by the palm's rotation relative to T_gv
+  (``R_palm R_gv^T``, the rotation a0/a1 label): the executor puts the chosen anchor on T_gv's centre line
+  along the *palm's* normal, so in the tool's own frame a palm tilted by a0 or twisted by a1 has the
+  neighbouring row best aligned with a face (2026-12-01, 2,000 hammer demos: agreement 95% untilted, 58% at
+  a0 = -15 deg, 3% at -30; the tweeze expert, tilted -10 deg and twisted -20 deg, read anchor 3 for its
+  commanded 4 on every episode until 2026-12-02). Turning the faces with the palm separates the relative
+  position from the relative rotation; untilted grasps read as before. The pre-contact record: the
+  relative position is a pre-grasp law, and the fingers move the tool while they close (on 2,000
+  executor-v2 hammer demos the handle moved a median of 9 mm in the palm during the grasp stage; Eq 5
+  agreed with the commanded anchor on 56% of them at the end of the grasp, on 74% before contact,
+  both in the tool's frame). The recording
   holds the anchors and T_gv at the end of the grasp (``anchors_at_grasp``, ``gv_center/gv_rot``);
   both are rigid in their bodies (palm, tool), so they are carried back to the pre-contact record with
   the recorded palm and tool poses (:func:`_before_contact`). The label is the anchor index ``j`` of
   the best (face, anchor) pair. The grasp-end reading is kept as ``anchor_grasp_end``, and a variant
   that uses the palm normal instead of the box faces as ``anchor_palm_normal``, for diagnosis.
-  Eq 5 compares anchor directions with T_gv's face normals, so a palm tilted about the handle by
-  a0 <= -20 deg reads the neighbouring anchor row (see the label table in docs/results.md).
 * **a3 (Eqs 6-7)** -- each sensor is binarised with ``CONTACT_THRESHOLD_N`` = 1 N (the hammer
   weighs ~2.3 N; 99% of non-zero sensor forces during the lift are above 1.3 N, the rest are
   grazing touches), ``grasp_label`` per record of the **lift** stage (the tool hangs in the hand:
@@ -67,7 +72,8 @@ Findings on the 2,000 demos of the paper profile (executor v2, 250 Hz; ``python 
   palm tilted about the handle the commanded anchor, on the palm normal, is no longer the one best
   aligned with a face, the neighbouring row is. Agreement by commanded a0 (0, -5, ..., -30 deg): 95%,
   95%, 87%, 58%, 24%, 7%, 3%. The palm-normal diagnostic (``anchor_palm_normal``) equals the commanded
-  anchor on all 2,000: the hand did put that anchor on T_gv's centre line.
+  anchor on all 2,000: the hand did put that anchor on T_gv's centre line. (These are the tool-frame
+  readings of 2026-12-01; since 2026-12-02 Eq 5 turns T_gv's faces with the palm, above.)
 * a3: medium wrap 96.2% (1,731 of 1,800); on the hammer's round handle a parallel extension reads as
   itself on 40 of 89 and a precision disk on 21 of 79 (their other demos read palmar pinch: only the
   index and thumb reach the 3 cm handle); palmar pinch 32 of 32.
@@ -328,7 +334,10 @@ def recover_plan(demo: Any, plb: PhysicalLawsBank | None = None) -> RecoveredLab
         faces_end = labels.box_face_centers(gv_center_end, gv_half, gv_rot_end)
         anchor_end = int(labels.relative_position_label(gv_center_end, faces_end, anchors_end)[1])
     if np.all(np.isfinite(anchors)) and np.all(np.isfinite(gv_rot)):
-        faces = labels.box_face_centers(gv_center, gv_half, gv_rot)
+        # Eq 5 in the frame the plan acts in: T_gv's faces turned with the palm's rotation relative to T_gv (what
+        # a0/a1 label), so a tilted or twisted palm does not read the neighbouring anchor row (see the docstring)
+        to_palm = palm_R[k_contact] @ gv_rot.T
+        faces = gv_center + (labels.box_face_centers(gv_center, gv_half, gv_rot) - gv_center) @ to_palm.T
         face, j = (int(x) for x in labels.relative_position_label(gv_center, faces, anchors))
         if j >= 0:
             plan[2] = dims[2].index(j)
@@ -389,17 +398,31 @@ def agreement(commanded: np.ndarray | Sequence[Sequence[int]], recovered: np.nda
     return np.mean(c == r, axis=0)
 
 
-def format_agreement(fractions: np.ndarray, n: int, plb: PhysicalLawsBank | None = None) -> str:
-    """A readable table: one line per dimension with its name, agreement percentage and count of ``n``."""
+def format_agreement(fractions: np.ndarray, n: int, plb: PhysicalLawsBank | None = None,
+                     unacted: Sequence[str] = ()) -> str:
+    """A readable table: one line per dimension with its name, agreement percentage and count of ``n``; the
+    dimensions named in ``unacted`` (a task's ``unacted_dims``) are marked and left out of the acted mean."""
     plb = plb or load_plb()
     fractions = np.asarray(fractions, dtype=float)
     if fractions.shape != (len(plb.dims),):
         raise ValueError(f"expected {len(plb.dims)} fractions, got shape {fractions.shape}")
+    unknown = sorted(set(unacted) - set(plb.dim_names))
+    if unknown:
+        raise ValueError(f"unknown dimension(s) {unknown}; known: {list(plb.dim_names)}")
     width = max(len(d.name) for d in plb.dims)
     lines = [f"label agreement over {n} demos (recovered == commanded)"]
     for i, (d, f) in enumerate(zip(plb.dims, fractions, strict=True)):
-        lines.append(f"  a{i} {d.name:<{width}}  {100 * f:6.1f}%  ({round(float(f) * n)}/{n})")
+        mark = "  (not acted on by this task)" if d.name in unacted else ""
+        lines.append(f"  a{i} {d.name:<{width}}  {100 * f:6.1f}%  ({round(float(f) * n)}/{n}){mark}")
+    lines.append(f"  mean over acted dimensions  {100 * acted_mean(fractions, plb, unacted):6.1f}%")
     return "\n".join(lines)
+
+
+def acted_mean(fractions: np.ndarray, plb: PhysicalLawsBank | None = None, unacted: Sequence[str] = ()) -> float:
+    """Mean agreement over the dimensions not named in ``unacted``."""
+    plb = plb or load_plb()
+    acted = [f for name, f in zip(plb.dim_names, np.asarray(fractions, dtype=float), strict=True) if name not in unacted]
+    return float(np.mean(acted)) if acted else float("nan")
 
 
 def format_agreement_by(commanded: np.ndarray, recovered: np.ndarray, dim: int, by: int,

@@ -116,6 +116,10 @@ class PRLTaskEnv(BaseEnv):
     """Key of ``evaluate()`` holding the task's measured quantity (the paper's reward)."""
     expert_plan: tuple[int, ...] = ()
     """A hand-designed plan that should succeed on most randomised scenes (a reference, not a label)."""
+    unacted_dims: ClassVar[tuple[str, ...]] = ()
+    """Representation-Space dimensions (``prl.plb`` names) this task's stages never act on: without a place stage
+    the executor never reads a5 (``tool_object_rot``). Their labels read what the scene gives whatever the plan,
+    the expert commands that value, and label agreement is reported over the other (acted) dimensions."""
     stages: ClassVar[StageSpec]
     """The executor stages this task runs, their time shares, where T_fv meets the object and what follows
     the motion (``prl.stages.StageSpec``): data, so the executor needs no per-task branch."""
@@ -286,5 +290,69 @@ class PRLTaskEnv(BaseEnv):
         return {} if self.agent is None else super()._get_obs_agent()
 
     def get_state_dict(self) -> dict:
-        """ManiSkill's state dict; also works without an agent (``robot_uids="none"``, used by scene tests)."""
-        return self.scene.get_sim_state() if self.agent is None else super().get_state_dict()
+        """ManiSkill's state dict of this scene, complete: ``actors`` and ``articulations`` always present (the
+        scene may have no free actor: the bottle), plus ``task``, what the task's per-frame watch has kept so far
+        (``watch_state``), so a restored state evaluates and observes as the saved one did. Also works without
+        an agent (``robot_uids="none"``, used by scene tests)."""
+        state = self.scene.get_sim_state() if self.agent is None else super().get_state_dict()
+        state = {"actors": state.pop("actors", {}), "articulations": state.pop("articulations", {}), **state}
+        watch = self.watch_state()
+        if watch:
+            state["task"] = {name: torch.tensor([[float(value)]]) for name, value in watch.items()}
+        return state
+
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor | None = None) -> None:
+        """Restore a ``get_state_dict`` of this scene: bodies, joints and the watch's state."""
+        super().set_state_dict({k: v for k, v in state.items() if k in ("actors", "articulations")}, env_idx)
+        if "task" in state:
+            self.set_watch_state({name: float(torch.as_tensor(v).reshape(-1)[0]) for name, v in state["task"].items()})
+
+    def set_state(self, state: Any, env_idx: torch.Tensor | None = None) -> None:
+        """Restore a flat ``get_state()`` vector. ManiSkill reads the vector with the layout of the first scene
+        built; these scenes are rebuilt on every reset with their own bodies (a sweep's 6-8 cubes), so the layout
+        is this scene's: the vector must come from a scene of the same seed. A vector of another length is an
+        error naming both lengths."""
+        state = torch.as_tensor(state)
+        state = state[None] if state.ndim == 1 else state
+        layout = self.get_state_dict()
+        size = state_size(layout)
+        if state.shape[-1] != size:
+            raise ValueError(f"a flat state of {state.shape[-1]} values does not fit this scene's {size} "
+                             f"(a state of another scene: reset with the seed it was taken on first)")
+        self.set_state_dict(unflatten_state(state, layout)[0], env_idx)
+
+    def on_stage_start(self, stage: str) -> None:
+        """The plan executor calls this before the first physics frame of each stage it runs (``prl.stages``
+        names), for every task alike; a task whose measure counts from a stage keeps its reference here (the
+        unscrew counts the cap's turn from the motion on). Nothing by default. Controllers without stages (joint
+        control, ``env.step``) never call it: such a measure then counts from the reset."""
+
+    def watch_state(self) -> dict[str, float]:
+        """What the task's per-frame watch (``_after_simulation_step``) has kept in this episode, as named numbers
+        (none by default); ``set_watch_state`` restores it."""
+        return {}
+
+    def set_watch_state(self, values: dict[str, float]) -> None:
+        """Restore ``watch_state``; an unknown name is an error naming it."""
+        if values:
+            raise ValueError(f"{type(self).__name__} keeps no watch state; got {sorted(values)}")
+
+
+def state_size(layout: dict) -> int:
+    """Number of values a ManiSkill state dict flattens to (``mani_skill.utils.common.flatten_state_dict``)."""
+    return sum(state_size(v) if isinstance(v, dict) else int(torch.as_tensor(v).reshape(1, -1).shape[-1])
+               for v in layout.values())
+
+
+def unflatten_state(flat: torch.Tensor, layout: dict, start: int = 0) -> tuple[dict, int]:
+    """The state dict of ``layout``'s shape read from ``flat`` (N, D) from column ``start``, in the order
+    ``flatten_state_dict`` writes it; returns (dict, next column)."""
+    out: dict = {}
+    for name, value in layout.items():
+        if isinstance(value, dict):
+            out[name], start = unflatten_state(flat, value, start)
+        else:
+            width = int(torch.as_tensor(value).reshape(1, -1).shape[-1])
+            out[name], start = flat[:, start:start + width], start + width
+    return out, start
+

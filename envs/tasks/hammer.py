@@ -79,6 +79,8 @@ X_TO_Z_Q = [0.7071068, 0.0, -0.7071068, 0.0]
 X_TO_Y_Q = [0.7071068, 0.0, 0.0, 0.7071068]
 """Rotation about Z by +90 deg: a SAPIEN cylinder (axis X) lies along Y."""
 
+NAIL_DRIVERS: tuple[str, ...] = ("", "hand", "hammer")
+"""What the nail watch says pressed on the nail head last (as saved in the state: its index)."""
 
 @register_env("PRL-Hammer-v1", max_episode_steps=150)
 class PRLHammerEnv(PRLTaskEnv):
@@ -302,6 +304,20 @@ class PRLHammerEnv(PRLTaskEnv):
         self._nail_q = 0.0  # the nail joint's qpos after the last watched frame (m)
         self._hammer_drive = 0.0  # nail motion (m) credited to the hammer
         self._nail_driver = ""  # what pressed on the nail head in the last frame it moved: "hand", "hammer" or ""
+
+    def watch_state(self) -> dict[str, float]:
+        """The nail watch's state: the nail's qpos at the last watched frame, the descent credited to the hammer
+        and what pressed on the head last (0 nothing, 1 the hand, 2 the hammer)."""
+        return {"nail_q": self._nail_q, "hammer_drive": self._hammer_drive,
+                "nail_driver": float(NAIL_DRIVERS.index(self._nail_driver))}
+
+    def set_watch_state(self, values: dict[str, float]) -> None:
+        unknown = set(values) - {"nail_q", "hammer_drive", "nail_driver"}
+        if unknown:
+            raise ValueError(f"unknown hammer watch state {sorted(unknown)}")
+        self._nail_q = float(values.get("nail_q", self._nail_q))
+        self._hammer_drive = float(values.get("hammer_drive", self._hammer_drive))
+        self._nail_driver = NAIL_DRIVERS[int(values.get("nail_driver", NAIL_DRIVERS.index(self._nail_driver)))]
 
     def _after_simulation_step(self) -> None:
         """Per physics frame: credit the nail's motion in this frame to what presses on its head (the class

@@ -126,10 +126,12 @@ class PRLTweezeEnv(PRLTaskEnv):
 
     task_name = "tweeze"
     measure_key = "cube_lift_cm"
-    expert_plan = (2, 1, 4, 2, 6, 0)
+    expert_plan = (2, 1, 4, 2, 6, 1)
     """Palm tilted by -10 deg and turned by -20 deg (its little-finger side away from the tips: untwisted, it
-    brushed the cube on the way up), anchor 4, palmar pinch across the arms, finger squeeze, object Z || T_fv X
-    (a5 is not acted on)."""
+    brushed the cube on the way up), anchor 4, palmar pinch across the arms, finger squeeze, object Z || T_fv Y:
+    a5 is not acted on (no place stage), so the expert commands what the recording reads (X until 2026-12-02,
+    with the same physics: the executor reads a5 only to plan a place)."""
+    unacted_dims = ("tool_object_rot",)
     stages = StageSpec(
         shares=(("pregrasp", 0.22), ("approach", 0.12), ("grasp", 0.22), ("motion", 0.16), ("post_lift", 0.28)),
         fv_approach=(0.0, 0.0, 1.0),
@@ -143,6 +145,7 @@ class PRLTweezeEnv(PRLTaskEnv):
 
     # ------------------------------------------------------------------ scene
     def _load_scene(self, options: dict) -> None:
+        self._hand_touched_cube: list[str] = []  # also before the first episode (the state is read at construction)
         rng = self._scene_rng()
         u = partial(self._uniform, rng)
         self.scene_params = params = {
@@ -306,7 +309,7 @@ class PRLTweezeEnv(PRLTaskEnv):
         self.cube.set_pose(pose_from_matrix(center, rotation))
         self.cube.set_linear_velocity(torch.zeros((1, 3)))
         self.cube.set_angular_velocity(torch.zeros((1, 3)))
-        self._hand_touched_cube: list[str] = []  # hand links that pressed on the cube in any frame so far
+        self._hand_touched_cube = []  # hand links that pressed on the cube in any frame so far
         self._reset_hand()
 
     def _after_simulation_step(self) -> None:
@@ -315,6 +318,19 @@ class PRLTweezeEnv(PRLTaskEnv):
         touch: an expert episode takes 1.12x as long as without the watch (16 scenes, run alternately)."""
         if not self._hand_touched_cube:
             self._hand_touched_cube = self.hand_touches_cube()
+
+    def watch_state(self) -> dict[str, float]:
+        """The cube watch's state: 1 + the index (in the sorted hand link names) of the first hand link that pressed
+        on the cube in this episode, 0 if none did."""
+        names = sorted(self._hand_link_names.values())
+        return {"touched_link": float(names.index(self._hand_touched_cube[0]) + 1) if self._hand_touched_cube else 0.0}
+
+    def set_watch_state(self, values: dict[str, float]) -> None:
+        unknown = set(values) - {"touched_link"}
+        if unknown:
+            raise ValueError(f"unknown tweeze watch state {sorted(unknown)}")
+        k = int(values.get("touched_link", 0))
+        self._hand_touched_cube = [sorted(self._hand_link_names.values())[k - 1]] if k > 0 else []
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:

@@ -75,10 +75,14 @@ class PRLUnscrewEnv(PRLTaskEnv):
     - bottle body radius in [2.2, 2.8] cm and height in [3.5, 4.5] cm; bottle position +-2 cm in x, y
 
     **Success Conditions:**
-    - the cap's joint turned more than 8 deg counter-clockwise seen from above (read from the unwrapped joint
-      position; a clockwise turn is not success), and at the end at least two hand links other than the palm
-      press on the cap's side (``gripped``: a palm that turned it by rubbing its top does not count);
-      reward = the turn in degrees
+    - the cap turned more than 8 deg counter-clockwise seen from above **during the plan's motion** (read from
+      the unwrapped joint position: its change from the first frame of the executor's motion stage to the end;
+      a clockwise turn is not success), and at the end at least two hand links other than the palm press on the
+      cap's side (``gripped``: a palm that turned it by rubbing its top does not count); reward = that turn in
+      degrees. Closing a grasp is not unscrewing: a medium wrap's fingers curl one way round the cap and turn
+      it 1-10 deg as they close (seeds 0-7: 1.3-9.7 deg), which counted as opening it until 2026-12-02; that
+      turn is ``grasp_turn_deg``, the joint's whole turn ``cap_angle_deg``. A controller without stages (joint
+      control) is measured from the reset.
     - fail: NaN in the simulation
     """
 
@@ -86,6 +90,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
     measure_key = "cap_turn_deg"
     expert_plan = (0, 3, 2, 3, 5, 1)
     """No tilt, no twist, anchor 2, precision disk round the cap, arm rotation about the palm, object Z || T_fv Y."""
+    unacted_dims = ("tool_object_rot",)
     stages = StageSpec(
         shares=(("pregrasp", 0.25), ("approach", 0.12), ("grasp", 0.23), ("motion", 0.40)),
         fv_approach=(0.0, 0.0, 1.0),
@@ -111,6 +116,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
         }
         self._build_table()
         self._build_bottle(params)
+        self._motion_start_deg = 0.0  # also before the first episode (ManiSkill reads the state at construction)
 
     def _seat_height(self) -> float:
         """Height of the cap's bottom face (its seat on the neck)."""
@@ -169,6 +175,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict) -> None:
         self.bottle.set_qpos(torch.zeros((1, 1)))
         self.bottle.set_qvel(torch.zeros((1, 1)))
+        self._motion_start_deg = 0.0  # the cap's angle when the plan's motion started (on_stage_start)
         self._reset_hand()
 
     # ------------------------------------------------------------------ executor API
@@ -177,9 +184,30 @@ class PRLUnscrewEnv(PRLTaskEnv):
         p = self.scene_params
         return np.array([p["bottle_x"], p["bottle_y"], self._seat_height()]), np.eye(3)
 
-    def cap_turn_deg(self) -> torch.Tensor:
-        """(1,) the cap's turn in degrees, counter-clockwise seen from above, read from the unwrapped joint."""
+    def cap_angle_deg(self) -> torch.Tensor:
+        """(1,) the cap's whole turn since the reset in degrees, counter-clockwise seen from above, read from the
+        unwrapped joint."""
         return torch.rad2deg(self.bottle.get_qpos()[:, 0])
+
+    def cap_turn_deg(self) -> torch.Tensor:
+        """(1,) the turn that counts (theta): the cap's turn since the executor's motion stage started (since
+        the reset when no stage started)."""
+        return self.cap_angle_deg() - self._motion_start_deg
+
+    def on_stage_start(self, stage: str) -> None:
+        """Keep the cap's angle when the motion starts: the turn counts from there."""
+        if stage == "motion":
+            self._motion_start_deg = float(self.cap_angle_deg()[0])
+
+    def watch_state(self) -> dict[str, float]:
+        """The cap's angle (deg) when the motion started (0 before)."""
+        return {"motion_start_deg": self._motion_start_deg}
+
+    def set_watch_state(self, values: dict[str, float]) -> None:
+        unknown = set(values) - {"motion_start_deg"}
+        if unknown:
+            raise ValueError(f"unknown unscrew watch state {sorted(unknown)}")
+        self._motion_start_deg = float(values.get("motion_start_deg", self._motion_start_deg))
 
     def tool_is_broken(self) -> torch.Tensor:
         """(1,) bool: the cap's simulated pose is NaN/inf (it cannot fall: it is jointed to the holder)."""
@@ -200,6 +228,8 @@ class PRLUnscrewEnv(PRLTaskEnv):
             "fail": broken,
             "gripped": torch.tensor([gripped]),
             "cap_turn_deg": torch.nan_to_num(turn, nan=0.0),
+            "grasp_turn_deg": torch.tensor([self._motion_start_deg]),
+            "cap_angle_deg": torch.nan_to_num(self.cap_angle_deg(), nan=0.0),
         }
 
     def _get_obs_extra(self, info: dict) -> dict[str, Any]:

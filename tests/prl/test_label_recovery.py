@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from prl import label_recovery as LR
+from prl import labels
 from prl.constants import JOINT_NAMES, SENSOR_NAMES
 from prl.demo import load_demo
 from prl.plb import load_plb
@@ -26,6 +27,14 @@ def bank():
 
 
 # ----------------------------------------------------------------------------- helpers
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The quaternion of the rotation ``a`` then (in its frame) ``b``: R(a) R(b)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
 
 
 def quat_axis(axis: str, deg: float) -> np.ndarray:
@@ -65,10 +74,12 @@ WRAP_CONTACTS = ("palm", "ff_distal", "mf_distal", "rf_distal", "lf_metacarpal",
 
 def synthetic_demo(palm_q: np.ndarray = IDENTITY_Q, lift_force: np.ndarray | None = None,
                    motion_dq: np.ndarray | None = None, object_q: np.ndarray = IDENTITY_Q,
-                   anchor_on_line: int = 3) -> SimpleNamespace:
+                   anchor_on_line: int = 3, anchors_with_palm: bool = False) -> SimpleNamespace:
     """A hand-built recording: tool at the identity, palm at ``palm_q`` from the pregrasp on, the
     contact pattern ``lift_force`` during the grasp and lift, a held tool whose T_fv reaches the object
-    (rotation ``object_q``) in the motion stage, and ``motion_dq`` spread over the motion stage."""
+    (rotation ``object_q``) in the motion stage, and ``motion_dq`` spread over the motion stage. With
+    ``anchors_with_palm`` the anchor grid turns with the palm, as the executor places it: anchor
+    ``anchor_on_line`` 3 cm out along the palm's normal, the others in the palm's plane."""
     stage = np.concatenate([np.full(n, s) for s, n in enumerate(STAGE_RECORDS)])
     t = len(stage)
     held = forces(WRAP_CONTACTS) if lift_force is None else lift_force
@@ -87,7 +98,8 @@ def synthetic_demo(palm_q: np.ndarray = IDENTITY_Q, lift_force: np.ndarray | Non
     # anchors: a 3 x 2 grid 3 cm above T_gv along +Y, with anchor ``anchor_on_line`` straight above the centre
     grid = np.array([[0.016, 0.085], [-0.016, 0.085], [0.016, 0.060], [-0.016, 0.060], [0.016, 0.035], [-0.016, 0.035]])
     grid = grid - grid[anchor_on_line]
-    anchors = GV_CENTER + np.stack([grid[:, 0], np.full(6, 0.03), grid[:, 1]], axis=1)
+    anchors = np.stack([grid[:, 0], np.full(6, 0.03), grid[:, 1]], axis=1)
+    anchors = GV_CENTER + (anchors @ LR.quat_to_matrix(palm_q).T if anchors_with_palm else anchors)
     return SimpleNamespace(
         stage=stage, qpos=qpos, qvel=np.zeros_like(qpos), force=force, palm_pose=palm_pose, tool_pose=tool_pose,
         object_pose=object_pose, anchors_at_grasp=anchors, gv_center=GV_CENTER, gv_half=GV_HALF, gv_rot=np.eye(3),
@@ -147,12 +159,44 @@ def test_anchor_above_gv_centre(bank, anchor):
     assert out.anchor_face == 2 and np.isclose(out.anchor_cos, 1.0)  # the +Y face, exactly parallel
 
 
+@pytest.mark.parametrize("anchor", range(6))
+def test_a_tilted_and_twisted_palm_reads_its_own_anchor(bank, anchor):
+    """The tweeze expert's palm (Rx -10 deg, then Rz -20 deg relative to T_gv): Eq 5 with T_gv's faces turned with
+    the palm reads the anchor on the palm's normal; in the tool's own frame some anchors read a neighbour."""
+    palm_q = quat_mul(quat_axis("x", -10), quat_axis("z", -20))
+    demo = synthetic_demo(palm_q=palm_q, anchor_on_line=anchor, anchors_with_palm=True)
+    out = LR.recover_plan(demo, bank)
+    assert out.plan[2] == anchor and np.isclose(out.anchor_cos, 1.0)
+    assert out.plan[:2].tolist() == [2, 1]  # a0 = -10 deg, a1 = -20 deg
+
+
+def test_in_the_tools_frame_a_tilted_palm_reads_a_neighbouring_anchor(bank):
+    """What Eq 5 gave before it turned T_gv's faces with the palm: with the palm tilted by -30 deg about the handle
+    (this grid: rows 2.5 cm apart, 3 cm out), the next row leans 10 deg off the face normal, the commanded anchor
+    30 deg; turned with the palm, the commanded anchor is back on the face normal."""
+    demo = synthetic_demo(palm_q=quat_axis("x", -30), anchor_on_line=2, anchors_with_palm=True)
+    faces = labels.box_face_centers(GV_CENTER, GV_HALF, np.eye(3))
+    assert labels.relative_position_label(GV_CENTER, faces, demo.anchors_at_grasp)[1] != 2
+    assert LR.recover_plan(demo, bank).plan[2] == 2
+
+
 def test_grasp_pattern_from_lift_contacts(bank):
-    """ff_middle, ff_distal, th_distal at 5 N and a 0.5 N graze (under the 1 N threshold): palmar pinch."""
+    """ff_middle, ff_distal, th_distal at 5 N and a 0.5 N graze (under the 1 N threshold): palmar pinch, Jaccard
+    3/4 with its catalogue vector (which also has th_middle), 1/7 with the precision disk."""
     f = forces(("ff_middle", "ff_distal", "th_distal")) + forces(("palm",), 0.5)
     out = LR.recover_plan(synthetic_demo(lift_force=f), bank)
     assert out.plan[3] == bank.dims[3].index("palmar_pinch")
-    assert np.isclose(out.grasp_jaccard[bank.dims[3].index("palmar_pinch")], 1.0)
+    assert np.isclose(out.grasp_jaccard[bank.dims[3].index("palmar_pinch")], 0.75)
+    assert np.isclose(out.grasp_jaccard[bank.dims[3].index("precision_disk")], 1 / 7)
+
+
+def test_a_pinch_with_the_thumbs_middle_phalanx_reads_as_a_pinch(bank):
+    """The tweeze expert's held contacts, ff_distal and th_middle: Jaccard 2/4 with the palmar pinch, 2/5 with
+    the precision disk (before th_middle joined the pinch's vector: 1/4, so it read as a disk)."""
+    out = LR.recover_plan(synthetic_demo(lift_force=forces(("ff_distal", "th_middle"))), bank)
+    assert out.plan[3] == bank.dims[3].index("palmar_pinch")
+    assert np.isclose(out.grasp_jaccard[bank.dims[3].index("palmar_pinch")], 0.5)
+    assert np.isclose(out.grasp_jaccard[bank.dims[3].index("precision_disk")], 0.4)
     assert out.contact_fraction[SENSOR_NAMES.index("palm")] == 0.0
 
 
