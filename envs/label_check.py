@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +27,9 @@ from prl.plb import load_plb
 from prl.version import code_version
 
 
-def task_agreement(task: str, kind: str, scenes: int, seed: int = 0) -> tuple[np.ndarray, int, int]:
-    """(per-dimension agreement over the successful episodes, successes, episodes) of ``kind`` plans of
-    ``task`` on its ``scenes`` trial scenes."""
+def task_agreement(task: str, kind: str, scenes: int, seed: int = 0) -> tuple[np.ndarray, int, int, list[str]]:
+    """(per-dimension agreement over the successful episodes, successes, episodes, the misses of each dimension
+    as "commanded -> read xN") of ``kind`` plans of ``task`` on its ``scenes`` trial scenes."""
     run_seed = kind_seed(seed, kind)
     plans = plan_set(task, kind, scenes, run_seed)
     env = make_env(task)
@@ -46,10 +47,23 @@ def task_agreement(task: str, kind: str, scenes: int, seed: int = 0) -> tuple[np
         env.close()
     n_ok = len(commanded)
     frac = agreement(np.array(commanded), np.array(recovered)) if n_ok else np.full(6, np.nan)
-    return frac, n_ok, scenes
+    return frac, n_ok, scenes, misses(np.array(commanded), np.array(recovered))
 
 
-def markdown(rows: list[tuple[str, str, np.ndarray, int, int]], command: str) -> str:
+def misses(commanded: np.ndarray, recovered: np.ndarray) -> list[str]:
+    """Per dimension with a disagreement: ``a<d>: <commanded> -> <read> xN, ...`` in choice names."""
+    plb = load_plb()
+    out = []
+    for d, dim in enumerate(plb.dims):
+        pairs = Counter((int(c), int(r)) for c, r in zip(commanded[:, d], recovered[:, d], strict=True) if c != r) \
+            if len(commanded) else Counter()
+        if pairs:
+            names = ["none", *(str(c) for c in dim.choices)]  # index -1 (unread) -> "none"
+            out.append(f"a{d}: " + ", ".join(f"{names[c + 1]} -> {names[r + 1]} x{n}" for (c, r), n in pairs.most_common()))
+    return out
+
+
+def markdown(rows: list[tuple[str, str, np.ndarray, int, int, list[str]]], command: str) -> str:
     """The agreement tables as markdown, one row per (task, kind)."""
     plb = load_plb()
     head = "| task | plans | successes used | " + " | ".join(f"a{i} {n}" for i, n in enumerate(plb.dim_names)) \
@@ -65,11 +79,14 @@ def markdown(rows: list[tuple[str, str, np.ndarray, int, int]], command: str) ->
         head,
         "|" + "---|" * (4 + len(plb.dim_names)),
     ]
-    for task, kind, frac, n_ok, n in rows:
+    for task, kind, frac, n_ok, n, _ in rows:
         unacted = task_class(task).unacted_dims
         cells = ["n/a" if name in unacted else f"{100 * f:.0f}%" for name, f in zip(plb.dim_names, frac, strict=True)]
         mean = acted_mean(frac, plb, unacted) if n_ok else float("nan")
         lines.append(f"| {task} | {kind} | {n_ok}/{n} | " + " | ".join(cells) + f" | {100 * mean:.0f}% |")
+    lines += ["", "What the misses read (commanded -> recovered, per dimension):", ""]
+    for task, kind, _, _, _, missed in rows:
+        lines += [f"- {task} {kind}: " + ("; ".join(missed) if missed else "none")]
     return "\n".join(lines) + "\n"
 
 
@@ -92,8 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for task in tasks:
         for kind in kinds:
-            frac, n_ok, n = task_agreement(task, kind, args.scenes, args.seed)
-            rows.append((task, kind, frac, n_ok, n))
+            frac, n_ok, n, missed = task_agreement(task, kind, args.scenes, args.seed)
+            rows.append((task, kind, frac, n_ok, n, missed))
             print(f"{task} {kind}: {n_ok}/{n} successes; agreement " + " ".join(f"{100 * f:.0f}%" for f in frac),
                   flush=True)
     text = markdown(rows, "python -m envs.label_check " + " ".join(argv if argv is not None else sys.argv[1:]))

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import sapien
 
+
 def _pose7(pose: Any) -> np.ndarray:
     return np.concatenate([np.asarray(pose.p, dtype=np.float64), np.asarray(pose.q, dtype=np.float64)])
 
@@ -79,4 +80,4 @@ def _joint_name(articulation: str, sapien_name: str) -> str:
     """``nail_joint`` of the SAPIEN joint name ``scene-0-nail_nail_joint`` (ManiSkill prefixes scene and owner)."""
     prefix = f"{articulation}_"
     tail = sapien_name.split("-", 2)[-1] if sapien_name.startswith("scene-") else sapien_name
-    return tail[len(prefix):] if tail.startswith(prefix) else tail
+    return tail.removeprefix(prefix)

@@ -1,7 +1,6 @@
 """Camera pictures of a recorded plan episode, rendered by replaying the demo kinematically (no physics).
 
-Two cameras (``prl.export_schema.VIDEO_CAMERAS``): ``front``, fixed on the workspace (the view of the stage
-pictures, ``envs.render_stages.VIEWS["workspace"]``), and ``wrist``, mounted on the palm link and looking
+Two cameras (``prl.export_schema.VIDEO_CAMERAS``): ``front``, fixed on the workspace (``FRONT_VIEW``), and ``wrist``, mounted on the palm link and looking
 along the fingers at what the hand holds, so it moves with the hand.
 
 A demo is replayed by resetting its task with the demo's seed, which rebuilds the same randomised scene
@@ -16,19 +15,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from contextlib import ExitStack
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
 from envs.render_probe import require_rendering
-from envs.render_stages import VIEWS, add_camera, look_at, take_picture
+from envs.render_stages import View, add_camera, look_at, take_picture
 from envs.scene_record import SceneParts
 from envs.tasks import fast_resets, make_env
 from prl.demo import SCENE_ARRAYS, Demo, require_arrays
-from prl.export_schema import VIDEO_CAMERAS
+from prl.export_schema import VIDEO_CAMERAS, VideoSpec
 
-FRONT_VIEW = VIEWS["workspace"]
-"""The fixed scene camera."""
+FRONT_VIEW = View(eye=(0.42, -0.66, 0.52), target=(0.0, 0.0, 0.1), fovy_deg=48.0)
+"""The fixed scene camera: the stage pictures' workspace view (``envs.render_stages.VIEWS``) from further back,
+so that a square picture holds every task's tool, object and the hand's path between them."""
 WRIST_EYE = (0.0, -0.075, -0.035)
 """Wrist camera position in the palm frame (+Z along the fingers, -Y out of the palm's front face): in front
 of the palm, behind the wrist."""
@@ -67,25 +67,23 @@ def set_recorded_state(env: Any, parts: SceneParts, demo: Demo, k: int) -> None:
 
 
 class DemoRenderer:
-    """Renders demos' records with the two cameras; use as a context manager (one env per task, closed on exit).
+    """Renders demos' records with the two cameras at ``spec``'s size; use as a context manager (one env per task,
+    closed on exit).
 
     ``renderer(demo, records)`` returns ``{camera: (len(records), H, W, 3) uint8}``; the signature the LeRobot
     export takes (``prl.export.export_lerobot``'s ``render_images``)."""
 
-    def __init__(self, width: int, height: int) -> None:
-        for name, value in (("width", width), ("height", height)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 16:
-                raise ValueError(f"video {name} must be an integer >= 16 pixels, got {value!r}")
-        self.width, self.height = width, height
+    def __init__(self, spec: VideoSpec) -> None:
+        self.width, self.height = spec.width, spec.height
         self._envs: dict[str, Any] = {}
         self._stack = ExitStack()
 
-    def __enter__(self) -> DemoRenderer:
+    def __enter__(self) -> Self:
         require_rendering("dataset video (pass --no-video to export without it)")
         self._stack.enter_context(fast_resets())
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         for gym_env in self._envs.values():
             gym_env.close()
         self._envs.clear()

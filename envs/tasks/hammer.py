@@ -79,8 +79,9 @@ X_TO_Z_Q = [0.7071068, 0.0, -0.7071068, 0.0]
 X_TO_Y_Q = [0.7071068, 0.0, 0.0, 0.7071068]
 """Rotation about Z by +90 deg: a SAPIEN cylinder (axis X) lies along Y."""
 
-NAIL_DRIVERS: tuple[str, ...] = ("", "hand", "hammer")
-"""What the nail watch says pressed on the nail head last (as saved in the state: its index)."""
+NAIL_DRIVERS: tuple[str, ...] = ("", "hand", "hammer", "loose_hammer")
+"""What the nail watch says pressed on the nail head last (as saved in the state: its index): a hand link, the
+hammer held by the hand (a hand link pressing on it in that frame), or the hammer with no hand on it."""
 
 @register_env("PRL-Hammer-v1", max_episode_steps=150)
 class PRLHammerEnv(PRLTaskEnv):
@@ -109,9 +110,12 @@ class PRLHammerEnv(PRLTaskEnv):
     - d, the nail descent the hammer made, exceeds 0.05 cm (the paper's d > 0 cm, with an epsilon
       against solver jitter); ``success_1cm``: d > 1 cm. Each physics frame in which the nail moves
       is credited to what presses on its head then: the hand if any hand link does, else the hammer
-      if it does, else whatever pressed last (the nail coasting). d is the hammer's credit; a hand
+      if it does **and a hand link presses on the hammer in that frame** (held), else the loose
+      hammer, else whatever pressed last (the nail coasting). d is the held hammer's credit; a hand
       slammed onto the nail (the joint-control baseline's thumb, an impulse of ~10 N s in one frame)
-      is not hammering. ``nail_depth_cm`` is the joint's whole descent, ``hand_drive_cm`` the rest.
+      is not hammering, nor is a hammer that slipped out of the hand and fell on the nail, or one
+      thrown at it (since 2026-12-02). ``nail_depth_cm`` is the joint's whole descent,
+      ``hand_drive_cm`` the hand's part, ``loose_drive_cm`` the loose hammer's.
     - fail: the hammer fell off the table (origin below z = -5 cm) or the simulation produced NaN
     - reward (dense) = d in centimetres
     """
@@ -302,21 +306,23 @@ class PRLHammerEnv(PRLTaskEnv):
 
     def _reset_nail_watch(self) -> None:
         self._nail_q = 0.0  # the nail joint's qpos after the last watched frame (m)
-        self._hammer_drive = 0.0  # nail motion (m) credited to the hammer
-        self._nail_driver = ""  # what pressed on the nail head in the last frame it moved: "hand", "hammer" or ""
+        self._hammer_drive = 0.0  # nail motion (m) credited to the hammer held by the hand
+        self._loose_drive = 0.0  # nail motion (m) by the hammer with no hand on it
+        self._nail_driver = ""  # what pressed on the nail head in the last frame it moved: one of NAIL_DRIVERS
 
     def watch_state(self) -> dict[str, float]:
-        """The nail watch's state: the nail's qpos at the last watched frame, the descent credited to the hammer
-        and what pressed on the head last (0 nothing, 1 the hand, 2 the hammer)."""
-        return {"nail_q": self._nail_q, "hammer_drive": self._hammer_drive,
+        """The nail watch's state: the nail's qpos at the last watched frame, the descent credited to the held and
+        to the loose hammer, and what pressed on the head last (its index in ``NAIL_DRIVERS``)."""
+        return {"nail_q": self._nail_q, "hammer_drive": self._hammer_drive, "loose_drive": self._loose_drive,
                 "nail_driver": float(NAIL_DRIVERS.index(self._nail_driver))}
 
     def set_watch_state(self, values: dict[str, float]) -> None:
-        unknown = set(values) - {"nail_q", "hammer_drive", "nail_driver"}
+        unknown = set(values) - {"nail_q", "hammer_drive", "loose_drive", "nail_driver"}
         if unknown:
             raise ValueError(f"unknown hammer watch state {sorted(unknown)}")
         self._nail_q = float(values.get("nail_q", self._nail_q))
         self._hammer_drive = float(values.get("hammer_drive", self._hammer_drive))
+        self._loose_drive = float(values.get("loose_drive", self._loose_drive))
         self._nail_driver = NAIL_DRIVERS[int(values.get("nail_driver", NAIL_DRIVERS.index(self._nail_driver)))]
 
     def _after_simulation_step(self) -> None:
@@ -325,12 +331,15 @@ class PRLHammerEnv(PRLTaskEnv):
         q = float(self._nail_px.get_qpos()[0])
         if abs(q - self._nail_q) > NAIL_MOVING_M:
             pressing = self.bodies_pressing(self._nail_head_px)  # one pass over the frame's contacts
+            hammer = self.tool._bodies[0]
             if self.hand_links_among(pressing):
                 self._nail_driver = "hand"
-            elif any(b is self.tool._bodies[0] for b in pressing):
-                self._nail_driver = "hammer"
+            elif any(b is hammer for b in pressing):  # held if a hand link presses on it now (a second pass)
+                self._nail_driver = "hammer" if self.hand_links_touching(hammer) else "loose_hammer"
             if self._nail_driver == "hammer":
                 self._hammer_drive += q - self._nail_q
+            elif self._nail_driver == "loose_hammer":
+                self._loose_drive += q - self._nail_q
         self._nail_q = q
 
     # ------------------------------------------------------------------ executor API
@@ -354,7 +363,8 @@ class PRLHammerEnv(PRLTaskEnv):
             "fail": broken,
             "nail_descent_cm": torch.nan_to_num(descent, nan=0.0),
             "nail_depth_cm": torch.nan_to_num(depth, nan=0.0),
-            "hand_drive_cm": torch.nan_to_num(depth - descent, nan=0.0),
+            "hand_drive_cm": torch.nan_to_num(depth - descent - self._loose_drive * 100.0, nan=0.0),
+            "loose_drive_cm": torch.tensor([self._loose_drive * 100.0]),
         }
 
     def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:

@@ -63,6 +63,8 @@ ZONE_HALF_WIDTH = 0.09
 """Zone half extent along Y (m)."""
 SUCCESS_COUNT = 3
 """Success: more than this many cubes end inside the zone (paper: N > 3)."""
+CUBE_MOVING_MPS = 1e-3
+"""A cube faster than this (m/s, any axis) is moving: the cube watch reads that frame's contacts."""
 FALL_HEIGHT = -0.05
 
 
@@ -87,7 +89,10 @@ class PRLSweepEnv(PRLTaskEnv):
     - sweep line (patch and zone) position +-2 cm in x, y; zone's near edge 0-1 cm past the sweep line
 
     **Success Conditions:**
-    - more than 3 cube centres inside the zone at the end (paper: N > 3); every cube starts outside it
+    - more than 3 cube centres inside the zone at the end (paper: N > 3); every cube starts outside it. A cube
+      counts only if the broom swept it: not one a hand link pressed on in any frame, nor one the broom pushed
+      while no hand link held the broom (since 2026-12-02; a per-frame watch reads the contacts in frames where
+      a cube moves). ``zone_cubes_hand_touched`` and ``zone_cubes_loose_pushed`` report the others in the zone
     - fail: the broom fell off the table or the simulation produced NaN
     - reward (dense) = N, the number of cubes in the zone; ``mean_displacement_cm`` reports how far the
       cubes moved
@@ -214,6 +219,7 @@ class PRLSweepEnv(PRLTaskEnv):
 
     def _build_debris(self, params: dict[str, float]) -> None:
         self.cubes = []
+        self._reset_cube_watch(int(params["n_cubes"]))
         for i in range(int(params["n_cubes"])):
             size = params[f"cube{i}_size"]
             material = physx.PhysxMaterial(params[f"cube{i}_friction"], params[f"cube{i}_friction"], 0.0)
@@ -224,6 +230,7 @@ class PRLSweepEnv(PRLTaskEnv):
                                    material=sapien.render.RenderMaterial(base_color=[0.85, 0.35, 0.2, 1]))
             builder.initial_pose = self._cube_pose(i)
             self.cubes.append(builder.build_dynamic(name=f"cube{i}"))
+        self._cube_bodies = [cube._bodies[0] for cube in self.cubes]  # PhysX bodies, read every frame
 
     def zone_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The zone as (min (2,), max (2,)) world (x, y) corners."""
@@ -249,7 +256,54 @@ class PRLSweepEnv(PRLTaskEnv):
         for body in [self.tool, *self.cubes]:
             body.set_linear_velocity(torch.zeros((1, 3)))
             body.set_angular_velocity(torch.zeros((1, 3)))
+        self._reset_cube_watch(len(self.cubes))
         self._reset_hand()
+
+    def _reset_cube_watch(self, n: int) -> None:
+        self._hand_touched = np.zeros(n, bool)  # cubes a hand link pressed on in some frame
+        self._loose_pushed = np.zeros(n, bool)  # cubes the broom pressed on while no hand link held it
+
+    def _after_simulation_step(self) -> None:
+        """Per physics frame in which a cube moves (faster than ``CUBE_MOVING_MPS``): mark the cubes a hand link
+        presses on, and those the broom presses on while no hand link presses on the broom (a broom dropped or
+        knocked onto the debris). One pass over the frame's contacts, only in such frames."""
+        if not any(np.abs(b.get_linear_velocity()).max() > CUBE_MOVING_MPS for b in self._cube_bodies):
+            return
+        broom = self.tool._bodies[0]
+        hand = self._hand_link_names
+        index = {id(b): i for i, b in enumerate(self._cube_bodies)}
+        by_broom, broom_held = [], False
+        for contact in self.scene.px.get_contacts():
+            if not any(np.abs(pt.impulse).sum() > 0 for pt in contact.points):
+                continue
+            a, b = contact.bodies
+            for cube, other in ((a, b), (b, a)):
+                i = index.get(id(cube))
+                if i is not None:
+                    if other.entity in hand:
+                        self._hand_touched[i] = True
+                    elif other is broom:
+                        by_broom.append(i)
+            if (a is broom and b.entity in hand) or (b is broom and a.entity in hand):
+                broom_held = True
+        if by_broom and not broom_held:
+            self._loose_pushed[by_broom] = True
+
+    def watch_state(self) -> dict[str, float]:
+        """The cube watch's state: bit masks (bit i: cube i) of the cubes the hand touched and of those a loose
+        broom pushed."""
+        return {"hand_touched": float(sum(1 << i for i in np.flatnonzero(self._hand_touched))),
+                "loose_pushed": float(sum(1 << i for i in np.flatnonzero(self._loose_pushed)))}
+
+    def set_watch_state(self, values: dict[str, float]) -> None:
+        unknown = set(values) - {"hand_touched", "loose_pushed"}
+        if unknown:
+            raise ValueError(f"unknown sweep watch state {sorted(unknown)}")
+        n = len(self._hand_touched)
+        for name, mask in (("hand_touched", self._hand_touched), ("loose_pushed", self._loose_pushed)):
+            if name in values:
+                bits = int(values[name])
+                mask[:] = [(bits >> i) & 1 for i in range(n)]
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:
@@ -277,7 +331,8 @@ class PRLSweepEnv(PRLTaskEnv):
         now = self.cube_positions()
         start = self.cube_start_positions()
         finite = bool(np.all(np.isfinite(now)))
-        counted = self.cubes_in_zone(np.nan_to_num(now, nan=1e3)) & ~self.cubes_in_zone(start)
+        in_zone = self.cubes_in_zone(np.nan_to_num(now, nan=1e3)) & ~self.cubes_in_zone(start)
+        counted = in_zone & ~self._hand_touched & ~self._loose_pushed
         n_in = int(counted.sum()) if finite else 0
         moved = float(np.mean(np.linalg.norm(now[:, :2] - start[:, :2], axis=1))) * 100.0 if finite else 0.0
         broken = self.tool_is_broken() | (not finite)
@@ -287,6 +342,8 @@ class PRLSweepEnv(PRLTaskEnv):
             "fail": broken,
             "cubes_in_zone": as_tensor([float(n_in)]),
             "mean_displacement_cm": as_tensor([moved]),
+            "zone_cubes_hand_touched": as_tensor([float(np.sum(in_zone & self._hand_touched))]),
+            "zone_cubes_loose_pushed": as_tensor([float(np.sum(in_zone & self._loose_pushed & ~self._hand_touched))]),
         }
 
     def _get_obs_extra(self, info: dict) -> dict[str, Any]:

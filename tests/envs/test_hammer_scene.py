@@ -184,16 +184,20 @@ def test_heavy_body_dropped_from_10cm_drives_nail_but_is_not_hammering(env: PRLH
     assert float(reward[0]) == float(info["nail_descent_cm"][0])
 
 
-def test_hammer_swung_down_at_2mps_drives_nail(env: PRLHammerEnv) -> None:
+def test_a_loose_hammer_swung_at_2mps_drives_the_nail_but_is_not_hammering(env: PRLHammerEnv) -> None:
+    """No hand holds this hammer (a hammer thrown at the nail, or one that slipped out of the hand and fell on
+    it): the nail goes in, all of it credited to the loose hammer, d = 0. Until 2026-12-02 it counted as a
+    success (the hammer pressed on the nail head); a held hammer's strike is credited (the expert plan,
+    ``tests/envs/test_executor.py``)."""
     env.reset(seed=8)
     _hammer_head_over_nail(env, gap=0.005, speed=2.0)
     _step(env, 0.5)
     info = env.evaluate()
-    assert _descent(env) > 0.5 and bool(info["success"][0])
-    assert float(info["nail_descent_cm"][0]) == pytest.approx(_descent(env), abs=1e-4)  # all of it the hammer's
-    assert float(info["hand_drive_cm"][0]) == pytest.approx(0.0, abs=1e-4)
+    assert _descent(env) > 0.5 and not bool(info["success"][0])
+    assert float(info["loose_drive_cm"][0]) == pytest.approx(_descent(env), abs=1e-4)  # all of it the loose hammer's
+    assert float(info["nail_descent_cm"][0]) == 0.0 and float(info["hand_drive_cm"][0]) == pytest.approx(0.0, abs=1e-4)
     reward = env.compute_dense_reward(None, None, info)
-    assert float(reward[0]) == pytest.approx(float(info["nail_descent_cm"][0]))
+    assert float(reward[0]) == 0.0
 
 
 def test_hammer_knocked_off_table_is_fail(env: PRLHammerEnv) -> None:

@@ -127,3 +127,64 @@ def test_bad_input_names_the_bad_value(executor) -> None:
         executor.run((0, 3, 2, 0, 2, 9), seed=1)
     with pytest.raises(ValueError, match="randomization must be a positive number, got -1"):
         make_env("sweep", randomization=-1)
+
+
+@pytest.mark.sim
+def test_a_hand_pushing_the_cubes_is_not_sweeping() -> None:
+    """The hand itself, fingers flat 1.2 cm over the table, driven 25 cm along +X through the debris: five cubes
+    end in the zone (until 2026-12-02 a success, N = 5), none of them counts: a hand link pressed on each."""
+    import torch
+
+    from envs.tasks import make_env
+
+    gym_env = make_env("sweep", control_mode="pd_joint_pos", obs_mode="none")
+    try:
+        gym_env.reset(seed=1)
+        env = gym_env.unwrapped
+        robot, p = env.agent.robot, env.scene_params
+        target = robot.get_qpos()[0].numpy().astype(np.float64)  # ARTx, ARTy, ARTz: world-aligned base slides
+        links = {link.name: link.pose.p[0].numpy() for link in robot.get_links()}
+        target[0] += (p["line_x"] - 0.12) - links["ff_distal"][0]  # the fingertips behind the debris
+        target[1] += p["line_y"] - links["palm"][1]
+
+        def hold(steps: int) -> None:
+            for _ in range(steps):
+                gym_env.step(torch.as_tensor(target, dtype=torch.float32)[None])
+
+        hold(40)
+        target[2] += 0.012 - links["ff_distal"][2]
+        hold(40)
+        for _ in range(50):
+            target[0] += 0.005
+            hold(1)
+        hold(20)
+        info = env.evaluate()
+        assert float(info["zone_cubes_hand_touched"][0]) >= 4
+        assert float(info["cubes_in_zone"][0]) == 0 and not bool(info["success"][0])
+    finally:
+        gym_env.close()
+
+
+@pytest.mark.sim
+def test_a_loose_broom_knocked_into_the_cubes_is_not_sweeping() -> None:
+    """No hand holds the broom: flung head first at 2 m/s along the table into the debris, it pushes a cube into the
+    zone; that cube does not count (the broom pressed on it with no hand link on the broom)."""
+    import sapien
+    import torch
+
+    from envs.tasks import make_env
+
+    gym_env = make_env("sweep", robot_uids="none", obs_mode="none")
+    try:
+        env = gym_env.unwrapped
+        env.reset(seed=2)
+        p = env.scene_params
+        env.tool.set_pose(sapien.Pose(p=[p["line_x"] - 0.12, p["line_y"], 0.03], q=[0, 0, 0, 1]))  # head first
+        env.tool.set_linear_velocity(torch.tensor([[2.0, 0.0, 0.0]]))
+        for _ in range(500):
+            env.step_physics()
+        info = env.evaluate()
+        assert float(info["zone_cubes_loose_pushed"][0]) >= 1
+        assert float(info["cubes_in_zone"][0]) == 0 and not bool(info["success"][0])
+    finally:
+        gym_env.close()

@@ -97,6 +97,20 @@ def test_expert_opens_the_cap_and_a_wrong_plan_does_not(executor, monkeypatch) -
 
 
 @pytest.mark.sim
+@pytest.mark.parametrize("plan", [(0, 3, 2, 0, 6, 1), (0, 3, 2, 0, 4, 1)], ids=["wrap-squeeze", "wrap-lift"])
+def test_a_grasp_without_a_turning_motion_never_opens_the_cap(executor, plan) -> None:
+    """A medium wrap turns the cap as its fingers close: on seeds 0 and 1 by 9.7 and 8.4 deg, past the paper's
+    8 deg, and until 2026-12-02 these plans (a finger squeeze, a straight lift) counted as opening it. The turn
+    that counts starts with the motion."""
+    for seed in (0, 1):
+        result = executor.run(plan, seed=seed)
+        out = result.outcome
+        assert out["grasp_turn_deg"] > 8.0 and out["gripped"], out  # the grasp alone turned it past 8 deg
+        assert out["cap_angle_deg"] == pytest.approx(out["grasp_turn_deg"] + out["cap_turn_deg"], abs=1e-3)
+        assert abs(out["cap_turn_deg"]) < 8.0 and not result.success, out
+
+
+@pytest.mark.sim
 def test_open_fingers_and_a_palm_rubbing_the_top_do_not_count(executor, monkeypatch) -> None:
     from prl import stages as ex
 
