@@ -68,20 +68,20 @@ def test_dimensions_match_table_ii(bank):
 def test_grasp_matrix(bank):
     g = bank.grasp_matrix()
     assert g.shape == (4, 17) and g.dtype == np.uint8
-    pinch = [SENSOR_NAMES.index(s) for s in ("ff_middle", "ff_distal", "th_middle", "th_distal")]
+    pinch = [SENSOR_NAMES.index(s) for s in ("ff_distal", "th_middle", "th_distal")]
     expected = np.zeros(17, dtype=np.uint8)
     expected[pinch] = 1
     np.testing.assert_array_equal(g[2], expected)
     assert g[0, SENSOR_NAMES.index("palm")] == 1  # medium wrap is a power grasp
     assert g[1, SENSOR_NAMES.index("palm")] == 0  # parallel extension: no palm
-    assert g.sum(axis=1).tolist() == [10, 10, 4, 5]
+    assert g.sum(axis=1).tolist() == [10, 10, 3, 5]
     assert len({row.tobytes() for row in g}) == 4
 
 
 def test_grasp_matrix_is_a_fresh_copy(bank):
     g = bank.grasp_matrix()
     g[:] = 0
-    assert bank.grasp_matrix().sum() == 29
+    assert bank.grasp_matrix().sum() == 28
 
 
 def test_motion_templates(bank):
