@@ -142,9 +142,8 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
             summaries.update(_reevaluate(list(summaries.values()), setup, workers, dask_address, make_task_runner))
         if todo:
             summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner))
-        figs = draw_fig8(summaries, out)
-        for fig in figs:
-            mlflow.log_artifact(str(fig))
+        for name, fig in draw_fig8(summaries, out).items():
+            mlflow.log_figure(fig, name)
         table = {name: s["eval"] | {"train_seconds": s["train_seconds"]} for name, s in summaries.items()}
         for name, s in sorted(table.items()):
             print(f"{name}: {s['successes']}/{s['n']} on unseen scenes (95% CI {s['ci95'][0]:.2f}-{s['ci95'][1]:.2f})")
@@ -191,10 +190,11 @@ def _repo_id_of(root: Path) -> str:
     return str(info.get("repo_id") or f"prl/{root.name}")
 
 
-def draw_fig8(summaries: dict[str, Any], out: Path) -> list[Path]:
+def draw_fig8(summaries: dict[str, Any], out: Path) -> dict[str, Any]:
     """Fig 8 from the points' curves: per task, physics-guided (largest K, and K = 0) vs BC vs joint control,
-    and the demonstration-step curves; each against timesteps and against physics frames."""
-    figs = []
+    and the demonstration-step curves; each against timesteps and against physics frames. Saved in ``out``;
+    returns {file name: figure}."""
+    figs = {}
     by_task: dict[str, dict[str, list]] = {}
     for s in summaries.values():
         p = s["point"]
@@ -204,9 +204,9 @@ def draw_fig8(summaries: dict[str, Any], out: Path) -> list[Path]:
         by_task.setdefault(p["task"], {}).setdefault(label, []).append(s["rows"])
     for task_name, curves in sorted(by_task.items()):
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
-            figs.append(plot_learning_curves(dict(sorted(curves.items())), x_key, "window_success_rate",
-                                             out / f"fig8_{task_name}_{x_key}.png", title=f"{task_name}: LN variants",
-                                             x_label=x_label, log_x=True))
+            name = f"fig8_{task_name}_{x_key}.png"
+            figs[name] = plot_learning_curves(dict(sorted(curves.items())), x_key, "window_success_rate", out / name,
+                                              title=f"{task_name}: LN variants", x_label=x_label, log_x=True)
     return figs
 
 
@@ -250,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         except FileNotFoundError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        print("\n".join(str(f) for f in figs))
+        out = Path(overrides.get("output_dir", AblationConfig.output_dir))
+        print("\n".join(str(out / name) for name in figs))
         return 0
     dataset_root, pointnet_path = overrides.pop("dataset_root", None), overrides.pop("pointnet_path", None)
     if not dataset_root or not pointnet_path:

@@ -22,6 +22,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.artifacts import publish_table, rate_row
 from flows.train_rn import TrainedRN
 from prl import tracking
 from prl.config import PipelineConfig
@@ -75,6 +76,7 @@ def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) ->
 
     seeds = eval_scene_seeds(cfg.seed, cfg.rn_eval_scenes)
     rates: dict[str, dict[str, float]] = {}
+    rows = []
     with tracking.child_run("rn-eval", params={"scenes_per_split": cfg.rn_eval_scenes,
                                                "wide_randomization": cfg.wide_randomization}):
         for split, scale in (("train_ranges", 1.0), ("wide_ranges", cfg.wide_randomization)):
@@ -83,6 +85,10 @@ def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) ->
                                       scale, cfg.seed + 31)
                 print(f"{name} ({split}): plans executed on {len(seeds)} unseen scenes")
                 rates[f"{name}/rn/{split}"] = log_rn_eval(name, split, out)
+                rows += [rate_row(sum(bool(o.success) for o in outs), len(outs), task=name, split=split, plan=kind)
+                         for kind, outs in out.items()]
+    publish_table("rn-success", rows, f"The RN's plans (three decodings) and two baselines on {len(seeds)} unseen "
+                  f"scenes per task: training ranges, and ranges x{cfg.wide_randomization:g} (wide_ranges)")
     return RNEval(rates, tuple(seeds))
 
 

@@ -14,11 +14,12 @@ from flows.recover_labels import Labels
 from flows.synthesize import Synthesis
 from prl import tracking
 from prl.config import PipelineConfig
-from prl.export_schema import DEFAULT_FPS, ExportReport
+from prl.export_schema import DEFAULT_FPS, ExportReport, VideoSpec
 
 #: Sources whose content decides the exported files (the export's cache key covers them).
 EXPORT_SOURCES: tuple[str, ...] = (
     "prl/export.py", "prl/export_schema.py", "prl/demo.py", "prl/constants.py", "flows/export_dataset.py",
+    "envs/video.py", "envs/scene_record.py", "envs/render_stages.py",
 )
 
 
@@ -32,11 +33,13 @@ class Dataset:
     report: ExportReport
 
 
-def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: Path, repo_id: str) -> ExportReport:
-    """Write, reload, validate and move the dataset into place; or, when the dataset at ``root`` was
-    exported from the same demo bytes and labels by the same export code and lerobot version
-    (``prl.export.export_key``), reload and validate it instead (``report.reused``). No result cache:
-    the result is a directory that can change under it."""
+def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: Path, repo_id: str,
+                   video: VideoSpec | None = None) -> ExportReport:
+    """Write, reload, validate and move the dataset into place, with the cameras' video when ``video`` is given
+    (each demo replayed by ``envs.video.DemoRenderer``); or, when the dataset at ``root`` was exported from the
+    same demo bytes, labels and video settings by the same export code and lerobot version
+    (``prl.export.export_key``), reload and validate it instead (``report.reused``). No result cache: the
+    result is a directory that can change under it."""
     import lerobot  # heavy: lerobot
 
     from prl.export import export_key, export_lerobot, reusable_export
@@ -44,11 +47,17 @@ def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: P
 
     # the files that decide what an export writes; a change elsewhere (e.g. the RN) keeps the dataset
     version = f"{source_version(*EXPORT_SOURCES)}-lerobot{lerobot.__version__}"
-    key = export_key(demo_paths, labels, repo_id, DEFAULT_FPS, version)
-    report = reusable_export(root, repo_id, key)
+    key = export_key(demo_paths, labels, repo_id, DEFAULT_FPS, version, video)
+    report = reusable_export(root, repo_id, key, video)
     if report is not None:
         return report
-    return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key)
+    if video is None:
+        return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key)
+    from envs.video import DemoRenderer  # heavy: the simulator and its renderer, only to draw the video
+
+    with DemoRenderer(video) as render:
+        return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key, video=video,
+                              render_images=render)
 
 
 @task(name="export", cache_policy=NO_CACHE)
@@ -65,16 +74,20 @@ def export_stage(cfg: PipelineConfig, synthesis: Synthesis, labels: Labels) -> D
         paths = [p for name in tasks for p in synthesis.demo_paths[name]]
         repo_id = f"prl/{'-'.join(tasks)}"
         root = cfg.output_dir / "datasets" / f"{'-'.join(tasks)}-seed{cfg.seed}"
-        report = export_dataset(paths, labels.recovered_by_path(synthesis), root, repo_id)
+        video = cfg.video_spec() if cfg.video else None
+        report = export_dataset(paths, labels.recovered_by_path(synthesis), root, repo_id, video)
         digest = dataset_digest(report.root)
         mlflow.log_metrics({"episodes": report.n_episodes, "frames": report.n_frames,
                             "size_mb": report.size_bytes / 1e6, "export_seconds": report.seconds,
-                            "reused": float(report.reused)})
-        mlflow.log_params({"dataset_root": str(report.root), "repo_id": repo_id, "dataset_digest": digest})
+                            "video_render_seconds": report.video_seconds, "reused": float(report.reused)})
+        mlflow.log_params({"dataset_root": str(report.root), "repo_id": repo_id, "dataset_digest": digest,
+                           "video": "none" if video is None else f"{video.width}x{video.height} at {video.fps} "
+                           f"pictures/s, {report.video_codec}"})
         with warnings.catch_warnings():  # a local path matches two equivalent source kinds
             warnings.simplefilter("ignore", UserWarning)
             source = resolve_dataset_source(str(report.root))
         mlflow.log_input(MetaDataset(source, name=repo_id, digest=digest), context="demonstrations")
-    print(f"LeRobot dataset {repo_id}: {report.n_episodes} episodes, {report.n_frames} frames at "
-          f"{report.root} ({'an identical earlier export, ' if report.reused else ''}validated on reload)")
+    print(f"LeRobot dataset {repo_id}: {report.n_episodes} episodes, {report.n_frames} frames"
+          f"{'' if video is None else f', 2 camera videos ({report.video_codec})'} at {report.root} "
+          f"({'an identical earlier export, ' if report.reused else ''}validated on reload)")
     return Dataset(report.root, repo_id, digest, report)

@@ -21,6 +21,7 @@ from typing import Any
 
 from prefect import flow
 
+from flows.artifacts import markdown_table, publish_summary
 from flows.check_assets import assets_stage
 from flows.compute_features import features_stage
 from flows.evaluate_rn import rn_eval_stage
@@ -50,10 +51,12 @@ def full_pipeline(profile: str = "quick", overrides: dict[str, Any] | None = Non
 
 def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     """The flow body (called inside the Prefect flow): the stages in DAG order under one MLflow parent run."""
-    if cfg.render:
+    if cfg.render or cfg.video:
         from envs.render_probe import require_rendering  # heavy: loads the simulator
 
-        require_rendering("stage pictures (pass --no-render to skip them)")
+        wants = [w for w, on in (("stage pictures (--no-render skips them)", cfg.render),
+                                 ("dataset video (--no-video skips it)", cfg.video)) if on]
+        require_rendering(" and ".join(wants))
     import envs  # noqa: F401  (registers the hand agent and the tasks)
 
     uri = tracking.configure("prl")
@@ -80,9 +83,40 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
             results.update(rn_eval.rates)
             if cfg.train_ln:
                 results.update(ln_stage(cfg, features, rn_eval))
-        print(f"MLflow parent run {parent.info.run_id}: "
-              f"mlflow ui --backend-store-uri {tracking.resolve_tracking_uri()}")
+        print(f"MLflow parent run {parent.info.run_id}: mlflow ui --backend-store-uri "
+              f"{tracking.resolve_tracking_uri()}, then {tracking.runs_page_url(parent.info.experiment_id)}")
+        publish_summary(run_summary(cfg, version, parent.info.run_id, parent.info.experiment_id, dataset, results))
     return results
+
+
+def run_summary(cfg: PipelineConfig, version: str, run_id: str, experiment_id: str, dataset: Any,
+                results: dict[str, dict[str, float]]) -> str:
+    """The markdown summary of a run (the ``pipeline-summary`` artifact): settings, where things are, the rates."""
+    report = dataset.report
+    video = (f"two camera videos {cfg.video_width}x{cfg.video_height}, {cfg.video_fps} pictures/s "
+             f"({report.video_codec})" if cfg.video else "no video")
+    rows = [{"run": key, "plan": kind, "success rate": round(rate, 3)}
+            for key, rates in results.items() for kind, rate in rates.items()]
+    models = ("`prl-rn`" + (", `prl-ln`" if cfg.train_ln else "") + " (pt2, no pickle)") if cfg.train_rn else "none"
+    return "\n".join([
+        f"# prl-full-pipeline: profile {cfg.profile}, seed {cfg.seed}",
+        "",
+        f"- tasks: {', '.join(cfg.tasks)}; {cfg.demos_per_task} demos per task; code {version} ({git_commit()})",
+        (f"- MLflow: parent run `{run_id}` in `{tracking.resolve_tracking_uri()}` (`mlflow ui --backend-store-uri "
+         f"{tracking.resolve_tracking_uri()}`, runs at {tracking.runs_page_url(experiment_id)})"),
+        (f"- dataset: `{dataset.repo_id}` at `{report.root}`: {report.n_episodes} episodes, {report.n_frames} "
+         f"frames at {report.fps} fps, {video}"),
+        f"- registered models: {models}",
+        "",
+        "## Success rates (simulated)",
+        "",
+        markdown_table(rows),
+        "",
+        "Tables of this run: " + ", ".join(f"`{k}`" for k in [f"trial-rates-{t}" for t in cfg.tasks]
+                                           + ["synthesis-yield", "label-agreement"]
+                                           + (["rn-success"] if cfg.train_rn else [])
+                                           + (["ln-success"] if cfg.train_rn and cfg.train_ln else [])),
+    ])
 
 
 CLI_EXCLUDE: tuple[str, ...] = ("profile", *(f"ln.{n}" for n in PipelineConfig.LN_SET_PER_POINT))

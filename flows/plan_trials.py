@@ -11,6 +11,7 @@ from prefect import task
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
 
 from envs.trials import TrialOutcome
+from flows.artifacts import publish_table, rate_row
 from flows.check_assets import Assets
 from prl import tracking
 from prl.config import PipelineConfig
@@ -50,7 +51,12 @@ def trials_stage(cfg: PipelineConfig, assets: Assets, task_name: str, out_dir: P
         outcomes = {kind: plan_trials(task_name, kind, cfg.eval_scenes, kind_seed(cfg.seed, kind), cfg.episode_frames,
                                       code_version)
                     for kind in PLAN_KINDS}
-        rates = _log_trials(task_name, outcomes, task_class(task_name).measure_key, out_dir)
+        measure_key = task_class(task_name).measure_key
+        rates = _log_trials(task_name, outcomes, measure_key, out_dir)
+    publish_table(f"trial-rates-{task_name}", [
+        rate_row(sum(bool(o.success) for o in v), len(v), **{"plan kind": kind},
+                 **{f"mean {measure_key}": round(float(np.mean([o.measure for o in v])), 3) if v else None})
+        for kind, v in outcomes.items()], f"{task_name}: plans executed on {cfg.eval_scenes} randomised scenes")
     print(f"{task_name}: success rate " + ", ".join(f"{k} {v:.2f}" for k, v in rates.items()))
     return Trials(task_name, rates, {k: len(v) for k, v in outcomes.items()})
 
@@ -73,5 +79,5 @@ def _log_trials(task: str, outcomes_by_kind: dict[str, list], measure_key: str, 
     fig = plot_trial_rates(task, rates, {k: len(v) for k, v in outcomes_by_kind.items()},
                            {k: [o.measure for o in v] for k, v in outcomes_by_kind.items()}, measure_key,
                            out_dir / f"{task}_trial_rates.png")
-    mlflow.log_artifact(str(fig))
+    mlflow.log_figure(fig, f"{task}_trial_rates.png")
     return rates

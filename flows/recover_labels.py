@@ -11,6 +11,7 @@ from prefect import task
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
 
 from envs.tasks import task_class
+from flows.artifacts import publish_table
 from flows.synthesize import Synthesis
 from prl import tracking
 from prl.demo import load_demo
@@ -53,6 +54,7 @@ def labels_stage(synthesis: Synthesis, code_version: str) -> Labels:
 
     plb = load_plb()
     by_task = {}
+    fractions: dict[str, np.ndarray] = {}
     with tracking.child_run("labels"):
         for name, paths in synthesis.demo_paths.items():
             by_task[name] = labels = recover_labels(name, paths, code_version)
@@ -62,4 +64,9 @@ def labels_stage(synthesis: Synthesis, code_version: str) -> Labels:
                                | {f"{name}/agreement/acted_mean": acted_mean(frac, plb, unacted)})
             mlflow.log_dict(labels, f"{name}_labels.json")
             print(f"{name} label agreement:\n" + format_agreement(frac, len(paths), plb, unacted))
+            fractions[name] = frac
+    publish_table("label-agreement", [
+        {"dimension": f"a{i} {dim}", **{name: round(float(f[i]), 3) for name, f in fractions.items()}}
+        for i, dim in enumerate(plb.dim_names)],
+        "Share of each task's demos whose recovered label equals the commanded plan, per dimension")
     return Labels(by_task)

@@ -19,6 +19,7 @@ from prefect_dask import DaskTaskRunner
 from tqdm.auto import tqdm
 
 from envs.synthesis import ShardResult, ShardSpec, split_successes
+from flows.artifacts import publish_table
 from flows.plan_trials import Trials
 from prl import tracking
 from prl.config import PipelineConfig
@@ -150,6 +151,11 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
                   f"(yield {report['yield']:.2f}; {int(report['errors'])} raised, "
                   + ", ".join(f"{int(v)} {k.split('/')[1]}" for k, v in report.items() if k.startswith("faults/"))
                   + ")")
+        publish_table("synthesis-yield", [
+            {"task": name, "attempts": int(r["attempts"]), "demos kept": int(r["successes"]),
+             "yield": round(r["yield"], 3), "raised": int(r["errors"]),
+             **{f"ended: {k.split('/')[1]}": int(v) for k, v in r.items() if k.startswith("faults/")}}
+            for name, r in reports.items()], "Demonstrations kept per task (plans sampled from the PLB prior)")
         new = sum(r.successes for r in shards) - already
         mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
         mlflow.log_param("demo_dir", str(demo_dir))

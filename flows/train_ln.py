@@ -25,6 +25,7 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from flows.artifacts import publish_table, rate_row
 from flows.compute_features import Features
 from flows.evaluate_rn import RNEval
 from prl import tracking
@@ -173,7 +174,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         for x_key in ("timesteps", "frames"):
             fig = plot_learning_curves({point.variant: [rows]}, x_key, "window_success_rate",
                                        setup.out_dir / f"{point.name}-{x_key}.png", title=point.name)
-            mlflow.log_artifact(str(fig), artifact_path="curves")
+            mlflow.log_figure(fig, f"curves/{point.name}-{x_key}.png")
         summary = {"point": asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": rows,
                    "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s, "eval": evaluation}
         _write_summary(summary, setup.out_dir)
@@ -242,18 +243,22 @@ def evaluate_policy(point: LNPoint, model: Any, setup: LNSetup) -> list[Any]:
 
 
 def register_policy(model: Any, x_check: np.ndarray) -> int:
-    """Log the policy as an MLflow model registered as ``prl-ln``, reload it, and return how many of the
-    deterministic actions on ``x_check`` differ between the reloaded and the in-memory policy (0 expected)."""
-    import mlflow  # heavy: mlflow
+    """Log the policy's deterministic plan (``prl.ln.PlanActor``) as an MLflow model in the ``pt2`` format (no
+    pickle: ``prl.tracking.log_exported_model``) registered as ``prl-ln``, reload it without unpickling, and
+    return how many of its plans on ``x_check`` differ from the in-memory SB3 policy's deterministic actions
+    (0 expected)."""
+    import torch  # heavy: torch
 
-    def act(policy: Any) -> np.ndarray:
-        return np.asarray(policy.predict(np.asarray(x_check, np.float32), deterministic=True)[0]).reshape(len(x_check), -1)
+    from prl.ln import PlanActor
 
-    before = act(model.policy)
-    info = mlflow.pytorch.log_model(model.policy, name="ln", registered_model_name="prl-ln",
-                                    serialization_format="pickle")
-    reloaded = mlflow.pytorch.load_model(info.model_uri)
-    return int(np.sum(np.any(act(reloaded) != before, axis=1)))
+    x = np.asarray(x_check, np.float32)
+    before = np.asarray(model.policy.predict(x, deterministic=True)[0]).reshape(len(x), -1)
+    example = np.resize(x, (max(2, min(8, len(x))), x.shape[1]))  # >= 2 rows: the batch size stays free
+    info = tracking.log_exported_model(PlanActor(model.policy), "ln", example, "prl-ln")
+    reloaded = tracking.load_exported_model(info.model_uri)
+    with torch.no_grad():
+        again = reloaded(torch.as_tensor(x)).numpy()
+    return int(np.sum(np.any(again != before, axis=1)))
 
 
 @task(name="ln", task_run_name="{point.name}", cache_policy=NO_CACHE)
@@ -283,6 +288,7 @@ def ln_stage(cfg: PipelineConfig, features: Features, rn_eval: RNEval) -> dict[s
                     register=True)
     write_demonstrations(setup.demo_dir, tasks, features.data)
     results = {}
+    table = []
     for name in tasks:
         summary = ln_point(LNPoint(name, "physics", cfg.ln.demo_steps, cfg.seed), setup)
         ev, rows = summary["eval"], summary["rows"]
@@ -290,4 +296,7 @@ def ln_stage(cfg: PipelineConfig, features: Features, rn_eval: RNEval) -> dict[s
               f"{rows[-1]['success_rate'] if rows else float('nan'):.2f} in the last update; deterministic plan "
               f"{ev['successes']}/{ev['n']} on unseen scenes (95% CI {ev['ci95'][0]:.2f}-{ev['ci95'][1]:.2f})")
         results[f"{name}/ln"] = {"success_rate": ev["successes"] / max(ev["n"], 1)}
+        table.append(rate_row(ev["successes"], ev["n"], task=name, split="train_ranges", plan="ln deterministic"))
+    publish_table("ln-success", table, f"The LN's deterministic plan after {cfg.ln.timesteps} RL timesteps, "
+                  f"pre-trained on {cfg.ln.demo_steps} demos, on the RN evaluation's unseen scenes")
     return results

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, ClassVar, get_origin, get_type_hints
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
+from prl.export_schema import VideoSpec
 
 
 class ConfigError(ValueError):
@@ -145,6 +146,15 @@ class PipelineConfig:
     """Where run outputs (pictures, datasets) are written."""
     render: bool = True
     """Render pictures of each executor stage (needs a Vulkan device)."""
+    video: bool = True
+    """Write two camera videos per episode into the dataset, rendered by replaying each demo (needs a Vulkan
+    device; docs/design.md "Dataset video")."""
+    video_width: int = VideoSpec.width
+    """Width of the dataset's camera pictures, pixels."""
+    video_height: int = VideoSpec.height
+    """Height of the dataset's camera pictures, pixels."""
+    video_fps: int = VideoSpec.fps
+    """Camera pictures per second, a divisor of the dataset's 50 fps; each is held until the next."""
     demos_per_task: int = 4
     """Successful demonstrations kept per task by scene synthesis (paper: 2,000)."""
     n_shards: int = 2
@@ -209,20 +219,32 @@ class PipelineConfig:
                               f"the LN cannot be pre-trained on more demonstrations than synthesis keeps")
         if not _is_int(self.seed) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if not isinstance(self.video, bool):
+            raise ConfigError(f"video must be true or false, got {self.video!r}")
+        try:
+            self.video_spec()
+        except ValueError as exc:
+            raise ConfigError(str(exc).replace("video ", "video_", 1)) from None
         out = Path(self.output_dir)
         probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("/"))
         if not probe.is_dir() or not os.access(probe, os.W_OK):
             raise ConfigError(f"output_dir {str(out)!r} is not writable (checked {str(probe)!r})")
         object.__setattr__(self, "output_dir", out.resolve())
 
+    def video_spec(self) -> VideoSpec:
+        """The dataset video's settings (also when ``video`` is off: they are checked either way)."""
+        return VideoSpec(width=self.video_width, height=self.video_height, fps=self.video_fps)
+
 
 PROFILES: dict[str, dict] = {
     "quick": {"eval_scenes": 8, "demos_per_task": 4, "n_shards": 2, "rn_epochs": 30, "rn_eval_scenes": 4,
               "ln": {"timesteps": 64}},
     "paper": {"eval_scenes": 50, "demos_per_task": 2000, "n_shards": 16, "rn_epochs": 200, "rn_eval_scenes": 50,
-              "pn_epochs": 30, "pn_shapes": 4000, "ln": {"timesteps": LNConfig.timesteps}},
+              "pn_epochs": 30, "pn_shapes": 4000, "ln": {"timesteps": LNConfig.timesteps}, "video": False},
 }
-"""Each profile's settings over ``PipelineConfig``'s defaults; ``ln`` is merged over the default LN settings."""
+"""Each profile's settings over ``PipelineConfig``'s defaults; ``ln`` is merged over the default LN settings. The
+paper profile leaves the dataset video out (``--video`` puts it in): it would add about 2 h to the export of its
+8,000 demos on a 2-core machine (docs/speed.md "Dataset export")."""
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from prl.dataset_files import check_destination, move_into_place, recover_stale, staging_path, tree_size
-from prl.demo import load_demo
+from prl.demo import Demo, load_demo
 from prl.export_check import EpisodeCheck, validate_lerobot
 from prl.export_schema import (
     DEFAULT_FPS,
@@ -35,11 +35,24 @@ from prl.export_schema import (
     FEATURES,
     ROBOT_TYPE,
     SCENES_FILE,
+    VIDEO_CAMERAS,
     ExportReport,
+    VideoSpec,
     as_label,
     episode_frames,
     lerobot_features,
+    video_key,
 )
+
+RenderImages = Callable[[Demo, Sequence[int], str], Mapping[str, np.ndarray]]
+"""``render_images(demo, records, source)``: ``{camera: (len(records), H, W, 3) uint8}`` pictures of the demo at
+those records, one per camera of ``VIDEO_CAMERAS`` (``envs.video.DemoRenderer``; ``source`` names the file in
+errors)."""
+
+STREAM_QUEUE_FRAMES = 100_000
+"""Frames per camera lerobot's streaming encoder may hold back; more than an episode has, so none is dropped."""
+VIDEO_CODECS: tuple[str, ...] = ("libsvtav1", "h264", "libaom-av1")
+"""Encoders tried for the cameras' video, in order: lerobot's default (SVT-AV1), then what works elsewhere."""
 
 
 def export_lerobot(
@@ -49,7 +62,8 @@ def export_lerobot(
     fps: int = DEFAULT_FPS,
     per_episode_label: Mapping[Any, Sequence[int] | np.ndarray] | None = None,
     *,
-    render_video: bool = False,
+    video: VideoSpec | None = None,
+    render_images: RenderImages | None = None,
     fast_writes: bool = True,
     key: str | None = None,
 ) -> ExportReport:
@@ -57,10 +71,13 @@ def export_lerobot(
 
     Episode ``i`` is ``demo_paths[i]``. ``per_episode_label`` maps a demo's path (as given, as
     string or resolved) or its scene seed to its (6,) recovered physical-law label; episodes
-    without one get ``NO_LABEL`` s. ``render_video`` is reserved: rendering is not implemented,
-    the dataset is written with ``use_videos=False`` and passing True raises NotImplementedError.
-    ``fast_writes`` skips lerobot's per-frame image-embedding pass, a no-op without image
-    features that costs ~6 ms a frame (see :func:`_quiet_fast_writes`); the files are the same.
+    without one get ``NO_LABEL`` s. With ``video`` (a :class:`VideoSpec`), ``render_images`` draws
+    each demo's camera pictures at ``video.records`` (this module never renders: it is pure), and
+    every camera is written as a video feature through lerobot (``use_videos=True``) with the first
+    encoder of ``VIDEO_CODECS`` that this machine's PyAV has (:func:`video_encoder`; lerobot records
+    the codec in ``meta/info.json``). ``fast_writes`` skips lerobot's per-frame image-embedding
+    pass, a no-op without image features that costs ~6 ms a frame (see :func:`_quiet_fast_writes`);
+    the files are the same.
     ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
     export can be skipped with :func:`reusable_export`.
 
@@ -84,8 +101,11 @@ def export_lerobot(
     paths = [Path(p) for p in demo_paths]
     if not paths:
         raise ValueError("no demo paths given: a LeRobot export needs at least one demonstration")
-    if render_video:
-        raise NotImplementedError("render_video=True: video rendering is not implemented yet (use_videos=False)")
+    if video is not None and not isinstance(video, VideoSpec):
+        raise TypeError(f"video must be a VideoSpec or None, got {video!r}")
+    if video is not None and render_images is None:
+        raise ValueError("video is set but render_images is None: the export needs something that draws the "
+                         "cameras' pictures (envs.video.DemoRenderer)")
     if isinstance(fps, bool) or not isinstance(fps, int) or fps <= 0:
         raise ValueError(f"fps must be a positive integer, got {fps!r}")
     if not isinstance(repo_id, str) or not repo_id.strip():
@@ -103,27 +123,26 @@ def export_lerobot(
         shutil.rmtree(staging)
     try:
         with _quiet_fast_writes(fast=fast_writes):
-            checks = _write(paths, staging, repo_id, fps, per_episode_label)
+            checks, video_seconds = _write(paths, staging, repo_id, fps, per_episode_label, video, render_images)
             if key is not None:
                 (staging / EXPORT_KEY_FILE).write_text(key + "\n")
-            report = validate_lerobot(staging, repo_id, expected=checks, drop_cache=True)
+            report = validate_lerobot(staging, repo_id, expected=checks, video=video, drop_cache=True)
         move_into_place(staging, root)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return ExportReport(
-        root=root, repo_id=repo_id, fps=report.fps, n_episodes=report.n_episodes, n_frames=report.n_frames,
-        episode_lengths=report.episode_lengths, tasks=report.tasks, n_labelled=report.n_labelled,
-        size_bytes=tree_size(root), seconds=time.perf_counter() - t0, checked_against_demos=True,
-    )
+    return replace(report, root=root, size_bytes=tree_size(root), seconds=time.perf_counter() - t0,
+                   video_seconds=video_seconds)
 
 
 def export_key(demo_paths: Sequence[Path | str], labels: Mapping[str, Sequence[int]] | None, repo_id: str,
-               fps: int, code_version: str) -> str:
+               fps: int, code_version: str, video: VideoSpec | None = None) -> str:
     """A digest of everything an export is made from: each demo file's name and bytes, in order, its
-    label (looked up by the path as given), ``repo_id``, ``fps`` and ``code_version``. Demo files are
-    written once and never change, so an equal key means an equal dataset."""
-    h = hashlib.sha256(json.dumps([repo_id, fps, code_version]).encode())
+    label (looked up by the path as given), ``repo_id``, ``fps``, the ``video`` settings and
+    ``code_version``. Demo files are written once and never change, so an equal key means an equal
+    dataset."""
+    video_settings = [] if video is None else [[video.width, video.height, video.fps]]
+    h = hashlib.sha256(json.dumps([repo_id, fps, code_version, *video_settings]).encode())
     for p in demo_paths:
         path = Path(p)
         label = None if labels is None else labels.get(str(p))
@@ -134,7 +153,7 @@ def export_key(demo_paths: Sequence[Path | str], labels: Mapping[str, Sequence[i
     return h.hexdigest()[:20]
 
 
-def reusable_export(root: Path | str, repo_id: str, key: str) -> ExportReport | None:
+def reusable_export(root: Path | str, repo_id: str, key: str, video: VideoSpec | None = None) -> ExportReport | None:
     """The validated report of the dataset at ``root`` if it was exported with ``key``; else None.
 
     The dataset is still reloaded with ``LeRobotDataset`` and checked
@@ -144,7 +163,7 @@ def reusable_export(root: Path | str, repo_id: str, key: str) -> ExportReport | 
     stored = root / EXPORT_KEY_FILE
     if not stored.is_file() or stored.read_text().strip() != key:
         return None
-    report = validate_lerobot(root, repo_id, drop_cache=True)
+    report = validate_lerobot(root, repo_id, video=video, drop_cache=True)
     return replace(report, size_bytes=tree_size(root), seconds=time.perf_counter() - t0, reused=True)
 
 
@@ -168,15 +187,36 @@ def _load(path: Path) -> Any:
         raise ValueError(f"demo file {str(path)!r} is unreadable: {type(exc).__name__}: {exc}") from exc
 
 
-def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
-           labels: Mapping[Any, Any] | None) -> list[EpisodeCheck]:
-    """Write every demo as an episode into ``staging`` (create -> add_frame -> save_episode -> finalize)."""
+def video_encoder(codecs: Sequence[str] = VIDEO_CODECS) -> Any:
+    """lerobot's ``RGBEncoderConfig`` for the first of ``codecs`` that this machine's PyAV can encode with
+    (lerobot's other settings left at its defaults); ValueError naming every codec tried when none can."""
+    from lerobot.configs.video import RGBEncoderConfig  # heavy (lerobot, av): only when writing video
+
+    errors = []
+    for codec in codecs:
+        try:
+            return RGBEncoderConfig(vcodec=codec)
+        except (ValueError, ImportError) as exc:  # lerobot's "Unsupported video codec" / "Invalid vcodec"
+            errors.append(f"{codec}: {exc}")
+    raise ValueError("no video encoder works here; tried " + "; ".join(errors))
+
+
+def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Mapping[Any, Any] | None,
+           video: VideoSpec | None, render_images: RenderImages | None) -> tuple[list[EpisodeCheck], float]:
+    """Write every demo as an episode into ``staging`` (create -> add_frame -> save_episode -> finalize);
+    return the checks of the episodes and the seconds spent rendering pictures."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy (torch, datasets): only when writing
 
-    ds = LeRobotDataset.create(repo_id, fps=fps, features=lerobot_features(), root=staging,
-                               robot_type=ROBOT_TYPE, use_videos=False)
+    encoder = video_encoder() if video is not None else None
+    # streaming: frames go straight to one encoder thread per camera, with no PNG round trip (0.73 s an
+    # episode against 1.17 s encoding the PNGs afterwards, 1.27 s in lerobot's default forked processes);
+    # lerobot drops a frame its queue cannot take, so the queue holds more than any episode has
+    ds = LeRobotDataset.create(repo_id, fps=fps, features=lerobot_features(video), root=staging,
+                               robot_type=ROBOT_TYPE, use_videos=video is not None, rgb_encoder=encoder,
+                               streaming_encoding=video is not None, encoder_queue_maxsize=STREAM_QUEUE_FRAMES)
     checks: list[EpisodeCheck] = []
     scenes: list[dict[str, Any]] = []
+    video_seconds = 0.0
     try:
         for path in paths:
             demo = _load(path)
@@ -188,6 +228,10 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
             except ValueError as exc:
                 raise ValueError(f"demo file {str(path)!r} is inconsistent: {exc}") from exc
             t = frames["stage"].shape[0]
+            if video is not None:
+                tv = time.perf_counter()
+                frames.update(_camera_frames(demo, video, render_images, str(path)))
+                video_seconds += time.perf_counter() - tv
             for i in range(t):
                 ds.add_frame({**{name: a[i] for name, a in frames.items()}, "task": text})
             ds.save_episode()
@@ -202,24 +246,46 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int,
         ds.finalize()
     with open(staging / SCENES_FILE, "w") as fh:
         fh.writelines(json.dumps(row) + "\n" for row in scenes)
-    return checks
+    return checks, video_seconds
+
+
+def _camera_frames(demo: Demo, video: VideoSpec, render_images: RenderImages, source: str) -> dict[str, np.ndarray]:
+    """``{video feature: (T, H, W, 3) uint8}``: the demo's pictures at ``video.records``, each held until the next."""
+    t = int(np.asarray(demo.stage).shape[0])
+    pictures = render_images(demo, video.records(t).tolist(), source)
+    if set(pictures) != set(VIDEO_CAMERAS):
+        raise ValueError(f"demo file {source!r}: pictures of cameras {sorted(pictures)}, expected {list(VIDEO_CAMERAS)}")
+    try:
+        return {video_key(cam): video.expand(pictures[cam], t) for cam in VIDEO_CAMERAS}
+    except ValueError as exc:
+        raise ValueError(f"demo file {source!r}: {exc}") from exc
 
 
 @contextlib.contextmanager
 def _quiet_fast_writes(fast: bool = True) -> Iterator[None]:
-    """Within the block: no ``datasets`` progress bars; with ``fast``, no per-frame image embedding.
+    """Within the block: no ``datasets`` progress bars, SVT-AV1's banner cut to errors
+    (``SVT_LOG=1``, unless set) and libav's notes to warnings; with ``fast``, no per-frame image
+    embedding.
 
     lerobot 0.6's ``DatasetWriter._save_episode_data`` runs ``embed_images`` on every episode,
     a row-by-row ``datasets.map`` (~6 ms a frame) that changes nothing when no feature is an
-    image; with ``fast`` the writer's reference to it is replaced by the identity for the
-    block (only when ``FEATURES`` holds no image or video). Both are restored afterwards.
+    image (a video lives in its MP4, not in the table); with ``fast`` the writer's reference to it
+    is replaced by the identity for the block (only when ``FEATURES`` holds no image). All is
+    restored afterwards.
     """
     import datasets  # heavy (pyarrow, pandas): only around a write
 
     bars = datasets.is_progress_bar_enabled()
     datasets.disable_progress_bars()
+    svt_log = os.environ.get("SVT_LOG")
+    os.environ.setdefault("SVT_LOG", "1")  # read by SVT-AV1 when an encoder starts
+    import av.logging  # heavy (libav): only around a write
+
+    # lerobot hands libav's log back to libav's own printer after each encoding; its level (INFO by default,
+    # not readable back) decides whether the MP4 muxer's "Starting second pass" notes reach stderr
+    av.logging.set_libav_level(av.logging.WARNING)
     patched = None
-    if fast and all(spec["dtype"] not in ("image", "video") for spec in FEATURES.values()):
+    if fast and all(spec["dtype"] != "image" for spec in FEATURES.values()):
         from lerobot.datasets import dataset_writer  # heavy: only to patch it for the block
 
         if callable(getattr(dataset_writer, "embed_images", None)):
@@ -232,5 +298,8 @@ def _quiet_fast_writes(fast: bool = True) -> Iterator[None]:
             from lerobot.datasets import dataset_writer  # already loaded above: the same module
 
             dataset_writer.embed_images = patched
+        if svt_log is None:
+            os.environ.pop("SVT_LOG", None)
+        av.logging.set_libav_level(av.logging.INFO)
         if bars:
             datasets.enable_progress_bars()

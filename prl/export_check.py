@@ -31,9 +31,12 @@ from prl.export_schema import (
     NO_LABEL,
     PER_EPISODE,
     SCENES_FILE,
+    VIDEO_CAMERAS,
     ExportError,
     ExportReport,
+    VideoSpec,
     read_scenes,
+    video_key,
 )
 
 
@@ -59,7 +62,8 @@ class EpisodeCheck:
 
 
 def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
-                     expected: Sequence[EpisodeCheck] | None = None, drop_cache: bool = False) -> ExportReport:
+                     expected: Sequence[EpisodeCheck] | None = None, video: VideoSpec | None = None,
+                     drop_cache: bool = False) -> ExportReport:
     """Reload the dataset at ``root`` with ``LeRobotDataset`` (offline) and check it; raise ExportError.
 
     Always checked: format v3.0, every ``FEATURES`` entry with its dtype and shape, episode
@@ -67,7 +71,9 @@ def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
     contiguous frame ranges and global indices, total frames, one task sentence per episode,
     plan/label/x_manip constant within each episode, one scene record per episode (``SCENES_FILE``). With ``expected`` (one per episode, in
     order): episode count, lengths, task sentences, plan and label, and the reloaded
-    ``observation.state`` (and plan) of one frame per episode read through ``dataset[i]``.
+    ``observation.state`` (and plan) of one frame per episode read through ``dataset[i]``. With
+    ``video``: each camera's video feature (``VideoSpec.features``: dtype, shape), its codec and
+    fps in the metadata, and, with ``expected``, that frame's pictures decoded at the spec's size.
 
     Loading makes ``datasets`` write an Arrow copy of the parquet files into its cache
     (``~/.cache/huggingface/datasets/parquet``, about 5x the dataset size); ``drop_cache``
@@ -83,14 +89,14 @@ def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
     except Exception as exc:
         raise ExportError(f"LeRobot could not load the dataset at {str(root)!r}: {type(exc).__name__}: {exc}") from exc
     try:
-        return _validate_loaded(ds, root, repo_id, expected, t0)
+        return _validate_loaded(ds, root, repo_id, expected, video, t0)
     finally:
         if drop_cache:
             drop_datasets_cache(ds)
 
 
 def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[EpisodeCheck] | None,
-                     t0: float) -> ExportReport:
+                     video: VideoSpec | None, t0: float) -> ExportReport:
     """The checks of :func:`validate_lerobot` on a loaded dataset."""
 
     def fail(msg: str) -> NoReturn:
@@ -107,6 +113,7 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
         if got["dtype"] != spec["dtype"] or tuple(got["shape"]) != tuple(spec["shape"]):
             fail(f"feature {name!r} is {got['dtype']}{tuple(got['shape'])}, expected {spec['dtype']}{spec['shape']}")
 
+    codec = _check_video_features(meta, video, fail)
     n_eps = meta.total_episodes
     eps = meta.episodes
     ep_index = np.asarray(eps["episode_index"], dtype=np.int64)
@@ -149,6 +156,12 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
         if not np.all(values == np.repeat(values[starts], lengths, axis=0)):
             fail(f"{name!r} is not constant within every episode")
         per_ep[name] = values[starts]
+    for name in meta.video_keys:  # every video holds one frame per dataset frame of each episode
+        spans = (np.asarray(eps[f"videos/{name}/to_timestamp"], dtype=float)
+                 - np.asarray(eps[f"videos/{name}/from_timestamp"], dtype=float)) * meta.fps
+        if not np.allclose(spans, lengths, atol=0.5):
+            fail(f"video {name!r} spans {np.round(spans).astype(int).tolist()[:10]} frames per episode, the "
+                 f"episodes have {lengths.tolist()[:10]}")
     n_labelled = int(np.sum(np.any(per_ep["label"] != NO_LABEL, axis=1)))
     try:
         scenes = read_scenes(root)
@@ -180,6 +193,11 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
                 fail(f"{where}: frame {exp.sample_index} has plan {item['plan'].tolist()}, the demo {list(exp.plan)}")
             if item["task"] != exp.task:
                 fail(f"{where}: frame {exp.sample_index} has task {item['task']!r}")
+            for name, spec in (video.features() if video is not None else {}).items():
+                h, w, c = spec["shape"]
+                if tuple(item[name].shape) != (c, h, w):
+                    fail(f"{where}: frame {exp.sample_index} of {name!r} decodes to {tuple(item[name].shape)}, "
+                         f"expected {(c, h, w)}")
             state = item["observation.state"].numpy()
             if not np.array_equal(state, exp.sample_state):
                 fail(f"{where}: observation.state of frame {exp.sample_index} differs from the demo "
@@ -189,7 +207,27 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
         root=root, repo_id=repo_id, fps=int(meta.fps), n_episodes=int(n_eps), n_frames=n_frames,
         episode_lengths=tuple(int(v) for v in lengths), tasks=tuple(tasks), n_labelled=n_labelled,
         size_bytes=tree_size(root), seconds=time.perf_counter() - t0, checked_against_demos=expected is not None,
+        video_codec=codec,
     )
+
+
+def _check_video_features(meta: Any, video: VideoSpec | None, fail: Any) -> str | None:
+    """With ``video``: every camera's feature as the spec says, with a codec and the dataset's fps in its
+    metadata; returns the codec (of the first camera's video), or None without video features."""
+    if video is not None:
+        for name, spec in video.features().items():
+            got = meta.features.get(name)
+            if got is None:
+                fail(f"video feature {name!r} is missing")
+            if got["dtype"] != "video" or tuple(got["shape"]) != tuple(spec["shape"]):
+                fail(f"feature {name!r} is {got['dtype']}{tuple(got['shape'])}, expected video{spec['shape']}")
+            info = got.get("info") or {}
+            if not info.get("video.codec"):
+                fail(f"video feature {name!r} has no codec in meta/info.json")
+            if int(info.get("video.fps", -1)) != int(meta.fps):
+                fail(f"video feature {name!r} is at {info.get('video.fps')} fps, the dataset at {meta.fps}")
+    first = meta.features.get(video_key(VIDEO_CAMERAS[0]))
+    return None if first is None else (first.get("info") or {}).get("video.codec")
 
 
 def drop_datasets_cache(ds: Any) -> None:
@@ -246,4 +284,7 @@ def _precheck_files(root: Path) -> None:
     n = int(info.get("total_episodes", -1))
     if n <= 0 or not set(range(n)) <= seen:
         raise ExportError(f"data files under {str(root / 'data')!r} lack episodes of the {n} in info.json")
+    for name, spec in (info.get("features") or {}).items():
+        if spec.get("dtype") == "video" and not sorted((root / "videos" / name).glob("*/*.mp4")):
+            raise ExportError(f"no video files of {name!r} under {str(root / 'videos' / name)!r}")
 

@@ -66,6 +66,30 @@ def make_ln(env: Any, cfg: LNConfig, x_mean: np.ndarray | None = None, x_std: np
     return A2C("MlpPolicy", env, policy_kwargs=policy_kwargs, verbose=0, device="cpu", **cfg.a2c_kwargs())
 
 
+class PlanActor(torch.nn.Module):
+    """The deterministic plan of an LN policy as a plain module of the policy's own layers: features -> actor MLP
+    -> action logits -> per-dimension argmax of the probabilities, what SB3's ``policy.predict(x,
+    deterministic=True)`` computes for a MultiDiscrete plan. It is what gets exported (``torch.export`` traces
+    ``forward``, which SB3's sampling distributions would not let it) and registered as ``prl-ln``."""
+
+    def __init__(self, policy: Any) -> None:
+        super().__init__()
+        nvec = getattr(policy.action_space, "nvec", None)
+        if nvec is None:
+            raise ValueError(f"PlanActor needs a MultiDiscrete plan policy, got action space {policy.action_space}")
+        self.features = policy.pi_features_extractor
+        self.actor = policy.mlp_extractor.policy_net
+        self.action_net = policy.action_net
+        self.dims = [int(m) for m in nvec]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, n_dims) int64 plan indices of x (B, x_dim)."""
+        logits = self.action_net(self.actor(self.features(x.float())))
+        # as SB3's Categorical(logits=...).probs: normalised logits, softmax, then the argmax (ties alike)
+        return torch.stack([torch.softmax(part - part.logsumexp(-1, keepdim=True), -1).argmax(-1)
+                            for part in torch.split(logits, self.dims, dim=1)], dim=1)
+
+
 @dataclass(frozen=True)
 class Demonstrations:
     """Demonstration transitions for pre-training: one per exported episode."""

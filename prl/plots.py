@@ -1,23 +1,25 @@
-"""Figures logged to MLflow and shown in docs/ (matplotlib, headless)."""
+"""Figures logged to MLflow and shown in docs/ (matplotlib, headless).
+
+Each function saves its figure as a PNG at ``out`` and returns the ``matplotlib.figure.Figure`` (built without
+pyplot, so nothing stays open in a global registry), which the flows log with ``mlflow.log_figure``."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 
 def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str, int],
-                     measures: Mapping[str, Sequence[float]], measure_name: str, out: Path) -> Path:
+                     measures: Mapping[str, Sequence[float]], measure_name: str, out: Path) -> Any:
     """Bar chart of success rate per plan kind, and the distribution of the measured quantity."""
-    import matplotlib  # heavy: matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # heavy: matplotlib
+    from matplotlib.figure import Figure  # heavy: matplotlib
 
     kinds = list(rates)
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9, 3.4))
+    fig = Figure(figsize=(9, 3.4))
+    ax0, ax1 = fig.subplots(1, 2)
     bars = ax0.bar(kinds, [rates[k] for k in kinds], color=["tab:green", "tab:orange", "tab:gray"][: len(kinds)])
     for bar, k in zip(bars, kinds):
         ax0.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 0.02, f"{rates[k]:.2f}\n(n={counts[k]})",
@@ -39,22 +41,18 @@ def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str,
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim_names: Sequence[str],
-                          choice_names: Sequence[Sequence[str]], out: Path, tau: float = 2.0) -> Path:
+                          choice_names: Sequence[Sequence[str]], out: Path, tau: float = 2.0) -> Any:
     """The paper's Fig 7 redrawn: one row per task, one bar chart per RS dimension.
 
     ``probs_by_task[task][i]`` is the (N, m_i) RN probabilities of dimension i over the task's samples;
     each bar is the mean predicted probability of a choice. Key dimensions (``prl.rn_decode.key_dimensions``:
     the top mean probability exceeds ``tau / m_i``, drawn as a dashed line) are drawn in colour with
     their top choice highlighted; the others in grey."""
-    import matplotlib  # heavy: matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # heavy: matplotlib
+    from matplotlib.figure import Figure  # heavy: matplotlib
 
     from prl.rn_decode import key_dimensions
 
@@ -72,7 +70,8 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
                 raise ValueError(f"task {task!r}, dimension {dim_names[i]!r}: probabilities of shape {np.shape(p)}, "
                                  f"expected (samples, {len(choice_names[i])})")
     tasks = list(probs_by_task)
-    fig, axes = plt.subplots(len(tasks), n, figsize=(2.3 * n, 1.9 * len(tasks) + 0.6), squeeze=False)
+    fig = Figure(figsize=(2.3 * n, 1.9 * len(tasks) + 0.6))
+    axes = fig.subplots(len(tasks), n, squeeze=False)
     for r, task in enumerate(tasks):
         summaries = key_dimensions(probs_by_task[task], tau=tau)
         for c, s in enumerate(summaries):
@@ -100,24 +99,21 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str, y_key: str,
-                         out: Path, title: str = "", x_label: str | None = None, log_x: bool = False) -> Path:
+                         out: Path, title: str = "", x_label: str | None = None, log_x: bool = False) -> Any:
     """The paper's Fig 8 redrawn: for each variant, ``y_key`` against ``x_key`` as the mean over seeds with a
     band from the lowest to the highest seed. ``curves[variant]`` is one list of rows per seed (the LN's
     per-update rows, first point at the end of the first update); seeds are aligned on their common ``x_key``
     range by linear interpolation. ``log_x`` puts ``x_key`` on a log scale (budgets that differ by 100x)."""
-    import matplotlib  # heavy: matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # heavy: matplotlib
+    from matplotlib.figure import Figure  # heavy: matplotlib
 
     if not curves:
         raise ValueError("curves is empty; give at least one variant")
-    fig, ax = plt.subplots(figsize=(6, 3.6))
+    fig = Figure(figsize=(6, 3.6))
+    ax = fig.subplots()
     for variant, runs in curves.items():
         runs = [r for r in runs if r]
         if not runs:
@@ -140,5 +136,4 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig

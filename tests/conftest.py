@@ -9,6 +9,7 @@ training, ``integration`` runs the whole system (a pipeline flow, deployments on
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,25 @@ import pytest
 # SAPIEN's renderer wants a runtime directory even when nothing is rendered; set before any test imports it.
 os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp/prl-runtime")
 os.makedirs(os.environ["XDG_RUNTIME_DIR"], exist_ok=True)
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Stop Prefect's temporary API server (started by the first in-process flow or task run) now, while pytest's
+    captured streams are open. Prefect stops it at interpreter exit otherwise, logging "Stopping temporary server"
+    through its console handler, whose stream is by then pytest's closed capture file: a "Logging error"
+    traceback at the end of every run that ran a flow. As Prefect's own test harness does, the workers that send
+    logs and events to that server are drained first, so that none of them calls it once it is gone."""
+    server_module = sys.modules.get("prefect.server.api.server")
+    if server_module is None:  # prefect's server was never imported: nothing was started
+        return
+    server = server_module.SubprocessASGIServer()  # the default (port-less) one the ephemeral API uses
+    if server.running:
+        from prefect.events.worker import EventsWorker  # loaded along with the server module above
+        from prefect.logging.handlers import APILogWorker
+
+        APILogWorker.drain_all()
+        EventsWorker.drain_all()
+    server.stop()
 
 
 @pytest.fixture(scope="module")

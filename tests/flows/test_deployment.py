@@ -73,6 +73,10 @@ def test_quick_pipeline_deployment_runs_on_a_prefect_server(tmp_path: Path) -> N
                              cwd=REPO, env=env, capture_output=True, text=True, timeout=960, check=False)
         assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
         assert "Completed" in res.stdout, res.stdout[-3000:]
+        # the run's keyed artifacts, read through the server's API as its Artifacts page does
+        req = urllib.request.Request(f"{api}/artifacts/filter", data=b"{}", method="POST",
+                                     headers={"Content-Type": "application/json"})
+        artifacts = {a["key"]: a for a in json.loads(urllib.request.urlopen(req, timeout=10).read()) if a["key"]}
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -93,3 +97,12 @@ def test_quick_pipeline_deployment_runs_on_a_prefect_server(tmp_path: Path) -> N
     children = set(runs[runs["tags.mlflow.parentRunId"].notna()]["tags.mlflow.runName"])
     assert children == {"assets", "trials-hammer", "synthesis", "labels", "export"}
     assert len(list((tmp_path / "out" / "synthesis").rglob("ep*.npz"))) == 1
+    assert set(artifacts) == {"trial-rates-hammer", "synthesis-yield", "label-agreement", "pipeline-summary"}
+    assert all(artifacts[k]["type"] == "table" for k in set(artifacts) - {"pipeline-summary"})
+    trial_rates = json.loads(artifacts["trial-rates-hammer"]["data"])
+    assert [r["plan kind"] for r in trial_rates] == ["expert", "prior", "uniform"]
+    assert [r["successes"].split("/")[1] for r in trial_rates] == ["1", "1", "1"]  # eval_scenes 1
+    assert json.loads(artifacts["synthesis-yield"]["data"])[0]["demos kept"] == 1
+    summary = artifacts["pipeline-summary"]
+    assert summary["type"] == "markdown" and "prl-full-pipeline: profile quick" in summary["data"]
+    assert parents.iloc[0]["run_id"] in summary["data"]  # it names the run's MLflow parent run

@@ -22,9 +22,10 @@ def _pipeline(tmp_path: Path, *args: str, module: str = "flows.full_pipeline") -
 
 
 #: Prints the flow-run graph as Prefect's UI draws it: one "upstream -> downstream" line per edge between the
-#: pipeline's task runs and subflow runs (a task's inputs that are another run's result).
+#: pipeline's task runs and subflow runs (a task's inputs that are another run's result); then one line
+#: "artifact {key: table rows or markdown}" of the keyed artifacts, as the UI's Artifacts page lists them.
 _GRAPH = r"""
-import asyncio, re
+import asyncio, json, re
 from prefect.client.orchestration import get_client
 
 async def main():
@@ -41,6 +42,9 @@ async def main():
                 for i in inputs:
                     if getattr(i, "id", None) is not None and str(i.id) in label:
                         print(f"{label[str(i.id)]} -> {label[str(t.id)]}")
+        artifacts = await client.read_artifacts()
+        print("artifact " + json.dumps({a.key: json.loads(a.data) if a.type == "table" else a.data
+                                        for a in artifacts if a.key}))
 
 asyncio.run(main())
 """
@@ -90,10 +94,19 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     export = children[children["tags.mlflow.runName"] == "export"].iloc[0]
     assert export["metrics.episodes"] == 6.0
     from prl.export_check import validate_lerobot
+    from prl.export_schema import VideoSpec
 
-    report = validate_lerobot(tmp_path / "out" / "datasets" / "hammer-sweep-seed0", "prl/hammer-sweep")
+    # the quick profile's dataset carries both cameras' video (lerobot's default codec), and reloads with it
+    report = validate_lerobot(tmp_path / "out" / "datasets" / "hammer-sweep-seed0", "prl/hammer-sweep",
+                              video=VideoSpec())
     assert report.n_episodes == 6 and report.n_frames == export["metrics.frames"] > 0
+    assert report.video_codec == "av1" and export["params.video"] == "128x128 at 10 pictures/s, av1"
+    assert export["metrics.video_render_seconds"] > 0
     assert export["params.dataset_digest"] and len(export["params.dataset_digest"]) == 16
+    experiment = mlflow.get_experiment_by_name("prl")
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"  # the UI opens on the runs
+    figures = {a.path for a in mlflow.MlflowClient().list_artifacts(trials["run_id"])}
+    assert "hammer_trial_rates.png" in figures
 
     # RN stages: scenes split by seed into train and held out; the registered model reloads to the same logits
     rn = children[children["tags.mlflow.runName"] == "rn-train"].iloc[0]
@@ -121,12 +134,25 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     graph = subprocess.run([sys.executable, "-c", _GRAPH], env=env, capture_output=True, text=True, timeout=300,
                            check=False)
     assert graph.returncode == 0, graph.stderr[-3000:]
-    edges = set(graph.stdout.splitlines())
+    edges = {line for line in graph.stdout.splitlines() if " -> " in line}
     for edge in ("assets -> trials-hammer", "assets -> trials-sweep", "trials-hammer -> synthesis",
                  "trials-sweep -> synthesis", "synthesis -> labels", "labels -> export", "synthesis -> export",
                  "assets -> pointnet", "export -> features", "pointnet -> features", "features -> rn-train",
                  "rn-train -> rn-eval", "rn-eval -> ln", "features -> ln"):
         assert edge in edges, (edge, sorted(edges))
+    # the run's keyed artifacts, as the Prefect UI's Artifacts page lists them
+    artifacts = dict(line.split(" ", 1) for line in graph.stdout.splitlines() if line.startswith("artifact "))
+    tables = json.loads(artifacts["artifact"])
+    assert set(tables) == {"trial-rates-hammer", "trial-rates-sweep", "synthesis-yield", "label-agreement",
+                           "rn-success", "ln-success", "pipeline-summary"}, sorted(tables)
+    assert [row["plan kind"] for row in tables["trial-rates-hammer"]] == ["expert", "prior", "uniform"]
+    assert tables["trial-rates-hammer"][0]["successes"] == "2/2" and tables["trial-rates-hammer"][0]["95% CI"]
+    assert {row["task"]: row["demos kept"] for row in tables["synthesis-yield"]} == {"hammer": 3, "sweep": 3}
+    assert [row["dimension"][:2] for row in tables["label-agreement"]] == ["a0", "a1", "a2", "a3", "a4", "a5"]
+    assert len(tables["rn-success"]) == 2 * 2 * 5  # tasks x splits x (3 decodings + 2 baselines)
+    assert {row["task"] for row in tables["ln-success"]} == {"hammer", "sweep"}
+    assert "prl-full-pipeline: profile quick" in tables["pipeline-summary"]
+    assert "two camera videos 128x128, 10 pictures/s (av1)" in tables["pipeline-summary"]
 
     # LN: one child run per task, pre-trained on the task's 3 demos, one A2C update of 64 plan episodes
     client = mlflow.tracking.MlflowClient()

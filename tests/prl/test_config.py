@@ -24,6 +24,9 @@ def test_quick_and_paper_profiles() -> None:
     assert make_config().eval_scenes == 8
     cfg = make_config("paper", seed=3)
     assert (cfg.eval_scenes, cfg.seed, cfg.tasks) == (50, 3, ("hammer", "sweep", "unscrew", "tweeze"))  # every task
+    # dataset video: in the quick profile, 128 x 128 at 10 pictures/s; out of the paper's unless asked for
+    assert make_config().video and make_config().video_spec().hold == 5 and not cfg.video
+    assert make_config("paper", video=True, video_fps=25).video_spec().hold == 2
 
 
 @pytest.mark.parametrize(("overrides", "match"), [
@@ -36,6 +39,9 @@ def test_quick_and_paper_profiles() -> None:
     ({"rn_val_fraction": 1.0}, r"rn_val_fraction must be a number in \(0, 1\), got 1.0"),
     ({"wide_randomization": 0.5}, "wide_randomization must be a number >= 1, got 0.5"),
     ({"demos_per_task": 1, "tasks": ("hammer",)}, "the RN needs at least 3 demos"),
+    ({"video_fps": 3}, r"video_fps must divide the dataset's 50 fps \(one of \[1, 2, 5, 10, 25, 50\]\), got 3"),
+    ({"video_width": 100.5}, "video_width must be an even number of pixels in 16..4096, got 100.5"),
+    ({"video": "yes"}, "video must be true or false, got 'yes'"),
 ])
 def test_bad_values_are_named(overrides: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):

@@ -411,8 +411,9 @@ def test_plot_rn_probabilities(tmp_path: Path) -> None:
              for task in ("hammer", "sweep")}
     names = [f"d{i}" for i in range(6)]
     choices = [[str(k) for k in range(m)] for m in RS_DIMS]
-    out = plot_rn_probabilities(probs, names, choices, tmp_path / "fig7.png")
-    assert out.is_file() and out.stat().st_size > 10_000
+    fig = plot_rn_probabilities(probs, names, choices, tmp_path / "fig7.png")
+    assert (tmp_path / "fig7.png").stat().st_size > 10_000
+    assert len(fig.axes) == 2 * 6  # a row per task, a chart per dimension: what mlflow.log_figure logs
     with pytest.raises(ValueError, match="'hammer'"):
         plot_rn_probabilities({"hammer": probs["hammer"][:5]}, names, choices, tmp_path / "bad.png")
 

@@ -78,3 +78,101 @@ def test_flatten_params_nested_dataclass() -> None:
         inner: Inner = field(default_factory=Inner)
 
     assert tracking.flatten_params(Outer()) == {"name": "x", "inner.lr": "0.5"}
+
+
+def test_experiments_are_model_development_and_the_runs_page_link_opens_them(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every experiment the project creates, or finds without it, carries MLflow's model-development kind."""
+    import mlflow
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store.db'}")
+    tracking.configure("fresh")
+    assert mlflow.get_experiment_by_name("fresh").tags[tracking.EXPERIMENT_KIND_TAG] == "custom_model_development"
+    old = mlflow.create_experiment("older")  # made before the tag existed
+    assert tracking.EXPERIMENT_KIND_TAG not in mlflow.get_experiment(old).tags
+    tracking.configure("older")
+    assert mlflow.get_experiment(old).tags[tracking.EXPERIMENT_KIND_TAG] == "custom_model_development"
+    # the value is the one this MLflow's UI knows, and the runs page's query the switch it reads first (its bundled
+    # JavaScript names the kinds and takes the workflow type from the query before the browser's last choice)
+    ui = "".join(f.read_text(errors="ignore") for f in
+                 (Path(mlflow.__file__).parent / "server" / "js" / "build" / "static" / "js").glob("main.*.js"))
+    assert 'CUSTOM_MODEL_DEVELOPMENT="custom_model_development"' in ui
+    assert 'e.MACHINE_LEARNING="machine_learning"' in ui and 'e.get("workflowType")' in ui
+    assert tracking.runs_page_url("7") == "http://127.0.0.1:5000/#/experiments/7?workflowType=machine_learning"
+
+
+def _tiny_net():
+    import torch
+
+    torch.manual_seed(0)
+    return torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.BatchNorm1d(8), torch.nn.ReLU(),
+                               torch.nn.Linear(8, 3)).eval()
+
+
+class _OpenOnLoad:
+    """Pickles as a call of ``open(path, "w")``: unpickling it creates the file (a harmless stand-in for a
+    payload that runs any code)."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_models_log_without_pickle_and_a_tampered_one_is_refused(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """``pt2`` models reload to the same outputs at another batch size, with no pickle warning (MLflow warns
+    on a ``pickle`` model, and ``load_exported_model`` refuses one); a copy whose example-input record was
+    replaced by a pickle payload, which MLflow's default load runs, is refused by
+    ``load_exported_model`` before anything in it runs."""
+    import logging
+    import pickle
+    import shutil
+    import zipfile
+
+    import mlflow
+    import numpy as np
+    import torch
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store.db'}")
+    tracking.configure("models")
+    net = _tiny_net()
+    x = np.random.default_rng(1).normal(size=(5, 4)).astype(np.float32)
+    warnings: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: warnings.append(record.getMessage())
+    logging.getLogger("mlflow").addHandler(handler)
+    try:
+        with mlflow.start_run():
+            info = tracking.log_exported_model(net, "net", x[:2], "tiny")
+            assert not [w for w in warnings if "Pickle" in w]
+            pickled = mlflow.pytorch.log_model(net, name="pickled", serialization_format="pickle")
+            assert [w for w in warnings if "Pickle" in w]  # what the project's models no longer cause
+    finally:
+        logging.getLogger("mlflow").removeHandler(handler)
+    with pytest.raises(mlflow.exceptions.MlflowException, match="pickle is disallowed"):
+        tracking.load_exported_model(pickled.model_uri)
+    reloaded = tracking.load_exported_model(info.model_uri)
+    with torch.no_grad():
+        assert np.array_equal(reloaded(torch.as_tensor(x)).numpy(), net(torch.as_tensor(x)).numpy())  # batch 5
+    with pytest.raises(ValueError, match="at least 2 rows"):
+        tracking.log_exported_model(net, "net", x[:1], "tiny")
+
+    local = Path(mlflow.artifacts.download_artifacts(info.model_uri, dst_path=str(tmp_path / "model")))
+    tampered = tmp_path / "tampered"
+    shutil.copytree(local, tampered)
+    marker = tmp_path / "payload-ran"
+    payload = pickle.dumps(_OpenOnLoad(str(marker)), protocol=2)
+    with zipfile.ZipFile(local / "data" / "model.pt2") as src, \
+            zipfile.ZipFile(tampered / "data" / "model.pt2", "w") as dst:
+        assert any(i.filename.endswith("data/sample_inputs/model.pt") for i in src.infolist())
+        for item in src.infolist():
+            dst.writestr(item, payload if item.filename.endswith("data/sample_inputs/model.pt") else src.read(item))
+    with pytest.raises(mlflow.exceptions.MlflowException, match="not a pickle-free payload"):
+        tracking.load_exported_model(str(tampered))
+    assert not marker.exists()
+    # MLflow's default (pickle allowed) runs it before failing: the payload is real
+    monkeypatch.delenv(tracking.NO_PICKLE_ENV, raising=False)
+    with pytest.raises(RuntimeError, match="deserializing"):
+        mlflow.pytorch.load_model(str(tampered))
+    assert marker.exists()
