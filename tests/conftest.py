@@ -58,6 +58,14 @@ def make_task_env() -> Iterator[Callable[..., Any]]:
         gym_env.close()
 
 
+@pytest.fixture(scope="module")
+def executor(env: Any) -> Any:
+    """A ``PlanExecutor`` on the test module's ``env`` fixture (a task's unwrapped environment)."""
+    from envs.executor import PlanExecutor  # heavy: loads the simulator
+
+    return PlanExecutor(env)
+
+
 TINY_POINTNET = {"n_points": 64, "n_shapes": 48, "n_val": 16, "epochs": 1, "channels": (16, 32), "head": (256,), "seed": 5}
 """A PointNet small enough to build in a test (the plan environment only needs a fixed encoder)."""
 

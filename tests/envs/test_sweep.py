@@ -79,13 +79,6 @@ def test_success_is_read_from_the_cube_positions(env) -> None:
     assert float(info["mean_displacement_cm"][0]) > 5.0
 
 
-@pytest.fixture(scope="module")
-def executor(env):
-    from envs.executor import PlanExecutor
-
-    return PlanExecutor(env)
-
-
 @pytest.mark.sim
 def test_expert_sweeps_and_a_wrong_plan_does_not(executor, monkeypatch) -> None:
     from honesty import assert_tool_held_by_contact_only, no_state_writes

@@ -73,13 +73,6 @@ def test_same_seed_same_scene(env) -> None:
     assert not bool(env.evaluate()["success"][0])
 
 
-@pytest.fixture(scope="module")
-def executor(env):
-    from envs.executor import PlanExecutor
-
-    return PlanExecutor(env)
-
-
 @pytest.mark.sim
 def test_expert_opens_the_cap_and_a_wrong_plan_does_not(executor, monkeypatch) -> None:
     from honesty import no_state_writes
