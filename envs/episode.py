@@ -19,7 +19,7 @@ import numpy as np
 from envs import ik
 from envs.execution import EpisodeResult
 from envs.hand_model import palm_anchors
-from envs.scene_record import SceneParts
+from envs.scene_record import SceneParts, sapien_pose7
 from envs.sensors import ContactSensors
 from envs.tasks.base import pose_from_matrix
 from prl.constants import N_ANCHORS, N_JOINTS, N_SENSORS
@@ -39,10 +39,6 @@ from prl.stages import (
 
 def pose7(p: np.ndarray, r: np.ndarray) -> np.ndarray:
     return sapien_pose7(pose_from_matrix(p, r))
-
-
-def sapien_pose7(pose: Any) -> np.ndarray:
-    return np.concatenate([np.asarray(pose.p, dtype=np.float64), np.asarray(pose.q, dtype=np.float64)])
 
 
 def _pose_matrix(pose: Any) -> np.ndarray:

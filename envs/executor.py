@@ -47,8 +47,9 @@ from typing import Any
 
 import numpy as np
 
-from envs.episode import Episode, pose7, sapien_pose7
+from envs.episode import Episode, pose7
 from envs.execution import EpisodeResult, ExecutorConfig
+from envs.scene_record import sapien_pose7
 from envs.sensors import ContactSensors
 from prl import plb as plb_module
 from prl.demo import X_MANIP_LAYOUT, X_MANIP_SAMPLES, x_manip_from_samples

@@ -29,14 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from envs.execution import ExecutorConfig
-from envs.executor import PlanExecutor
 from envs.plan_env import PlanEnv
-from envs.tasks import TASK_ENV_IDS, fast_resets, make_env, task_class
-from envs.trials import run_policy
+from envs.tasks import TASK_ENV_IDS, fast_resets, task_class
+from envs.trials import run_policy, run_trials
 from envs.vec_env import make_vec_env
 from prl import cem
 from prl.config import LNConfig
+from prl.constants import REPO_ROOT
 from prl.plb import load_plb
 from prl.pointnet import load_pointnet, pointnet_config, save_pointnet, train_pointnet
 from prl.version import code_version
@@ -66,12 +65,11 @@ class SearchResult:
     final_probs: list[np.ndarray] = field(default_factory=list)
 
 
-def _attempt(executor: PlanExecutor, task: str, plan: np.ndarray, seed: int) -> dict[str, Any]:
-    result = executor.run(plan, seed=seed)
+def _rows(task: str, outcomes: list[Any]) -> list[dict[str, Any]]:
+    """The attempts of ``envs.trials`` outcomes as report rows, with their ``EVIDENCE`` fields."""
     keys = EVIDENCE.get(task, ())
-    return {"plan": [int(v) for v in plan], "seed": int(seed), "success": bool(result.success),
-            "measure": float(result.outcome.get(task_class(task).measure_key, 0.0)), "fault": result.fault,
-            "evidence": {k: result.outcome[k] for k in keys if k in result.outcome}}
+    return [{"plan": list(o.plan), "seed": o.seed, "success": o.success, "measure": o.measure, "fault": o.fault,
+             "error": o.error, "evidence": {k: o.outcome[k] for k in keys if k in o.outcome}} for o in outcomes]
 
 
 def search(task: str, rounds: int = 5, per_round: int = 32, top_k: int = 5, check_scenes: int = 10,
@@ -81,31 +79,26 @@ def search(task: str, rounds: int = 5, per_round: int = 32, top_k: int = 5, chec
     rng = np.random.default_rng(zlib.crc32(f"red-team/{task}/{seed}".encode()))
     probs = cem.uniform(plb.sizes)
     out = SearchResult(task)
-    env = make_env(task)
-    executor = PlanExecutor(env, ExecutorConfig())
-    try:
-        with fast_resets():
-            for r in range(rounds):
-                plans = cem.sample(probs, per_round, rng)
-                rows = [_attempt(executor, task, p, red_team_seed(task, f"s{seed}r{r}", i)) for i, p in enumerate(plans)]
-                out.attempts += rows
-                out.round_rates.append(float(np.mean([row["success"] for row in rows])))
-                scores = np.array([1000.0 * row["success"] + row["measure"] for row in rows])
-                probs = cem.update(probs, cem.elites(plans, scores, elite), smoothing=0.7, floor=0.1)
-                print(f"{task} round {r}: {sum(row['success'] for row in rows)}/{per_round} successes", flush=True)
-            out.final_probs = probs
-            wins = Counter(tuple(row["plan"]) for row in out.attempts if row["success"])
-            for k, (plan, n_found) in enumerate(wins.most_common(top_k)):
-                rows = [_attempt(executor, task, np.array(plan), red_team_seed(task, f"s{seed}check{k}", i))
-                        for i in range(check_scenes)]
-                out.top.append({"plan": list(plan), "found": n_found, "checks": rows,
-                                "rate": float(np.mean([row["success"] for row in rows]))})
-    finally:
-        env.close()
+    for r in range(rounds):
+        plans = cem.sample(probs, per_round, rng)
+        seeds = [red_team_seed(task, f"s{seed}r{r}", i) for i in range(per_round)]
+        rows = _rows(task, run_trials(task, plans.tolist(), seeds, progress=False))
+        out.attempts += rows
+        out.round_rates.append(float(np.mean([row["success"] for row in rows])))
+        scores = np.array([1000.0 * row["success"] + row["measure"] for row in rows])
+        probs = cem.update(probs, cem.elites(plans, scores, elite), smoothing=0.7, floor=0.1)
+        print(f"{task} round {r}: {sum(row['success'] for row in rows)}/{per_round} successes", flush=True)
+    out.final_probs = probs
+    wins = Counter(tuple(row["plan"]) for row in out.attempts if row["success"])
+    for k, (plan, n_found) in enumerate(wins.most_common(top_k)):
+        seeds = [red_team_seed(task, f"s{seed}check{k}", i) for i in range(check_scenes)]
+        rows = _rows(task, run_trials(task, [plan] * check_scenes, seeds, progress=False))
+        out.top.append({"plan": list(plan), "found": n_found, "checks": rows,
+                        "rate": float(np.mean([row["success"] for row in rows]))})
     return out
 
 
-def quick_pointnet(path: Path = Path("outputs/models/red-team-pointnet.pt")) -> Path:
+def quick_pointnet(path: Path = REPO_ROOT / "outputs" / "models" / "red-team-pointnet.pt") -> Path:
     """A quick-profile PointNet for the RL searcher, trained once (about a CPU-minute) and reused."""
     if not path.is_file():
         cfg = pointnet_config("quick")
@@ -134,13 +127,7 @@ def rl_search(task: str, timesteps: int, check_scenes: int = 10, seed: int = 0, 
         env.close()
     seeds = [red_team_seed(task, f"s{seed}rl", i) for i in range(check_scenes)]
     policy = ln_policy(model.policy, load_pointnet(pointnet), task, load_plb().texts(task), seeds, 512)
-    outcomes = run_policy(task, policy, seeds, progress=False)
-    env = make_env(task)
-    executor = PlanExecutor(env, ExecutorConfig())
-    try:  # the successes again, to read their evidence (the same scene and plan: the same episode)
-        checks = [_attempt(executor, task, np.array(o.plan), o.seed) for o in outcomes]
-    finally:
-        env.close()
+    checks = _rows(task, run_policy(task, policy, seeds, progress=False))
     return {"task": task, "timesteps": timesteps, "curve": [r.get("success_rate", 0.0) for r in rows],
             "checks": checks}
 

@@ -21,7 +21,8 @@ import numpy as np
 import sapien
 
 
-def _pose7(pose: Any) -> np.ndarray:
+def sapien_pose7(pose: Any) -> np.ndarray:
+    """A SAPIEN pose as [x, y, z, qw, qx, qy, qz] (float64), the layout of every recorded pose."""
     return np.concatenate([np.asarray(pose.p, dtype=np.float64), np.asarray(pose.q, dtype=np.float64)])
 
 
@@ -51,9 +52,9 @@ class SceneParts:
         """(bodies, 7) poses [x, y, z, qw, qx, qy, qz] now."""
         out = np.empty((len(self.bodies), 7))
         for i, (_, entity) in enumerate(self._actors):
-            out[i] = _pose7(entity.get_pose())
+            out[i] = sapien_pose7(entity.get_pose())
         for i, (_, px) in enumerate(self._articulations, start=len(self._actors)):
-            out[i] = _pose7(px.get_root_pose())
+            out[i] = sapien_pose7(px.get_root_pose())
         return out
 
     def qpos(self) -> np.ndarray:

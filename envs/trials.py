@@ -11,7 +11,7 @@ import argparse
 import logging
 import traceback
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,9 @@ class TrialOutcome:
     """The executor's fault if it ended the plan itself (``prl.stages.FAULTS``), else ``""``."""
     error: str = ""
     """The exception text if the attempt raised (a bug, a PhysX error): then a failure, and the trials went on."""
+    outcome: dict[str, Any] = field(default_factory=dict, compare=False)
+    """The task's whole ``evaluate()`` at the end (plain values: the measure and how it came about, such as the
+    hammer's ``hand_drive_cm``); empty when the attempt raised."""
 
 
 PLAN_KINDS: tuple[str, ...] = ("expert", "prior", "uniform")
@@ -119,7 +122,8 @@ def run_policy(task: str, policy: Policy, seeds: Sequence[int], n_frames: int = 
                     continue
                 out.append(TrialOutcome(task=task, seed=int(seed), plan=tuple(int(v) for v in result.plan),
                                         success=bool(result.success), measure=float(result.outcome[key]),
-                                        fail=bool(result.outcome.get("fail", False)), fault=result.fault))
+                                        fail=bool(result.outcome.get("fail", False)), fault=result.fault,
+                                        outcome=dict(result.outcome)))
                 bar.set_postfix(success_rate=f"{np.mean([o.success for o in out]):.2f}")
             return out
     finally:

@@ -260,14 +260,10 @@ class PRLTaskEnv(BaseEnv):
 
     def bodies_pressing(self, body: Any, shape: Any = None) -> list[Any]:
         """The PhysX bodies pressing on the PhysX ``body`` now (on its collision ``shape`` only, if given):
-        simulated contacts with a non-zero impulse, one entry per contact."""
-        out = []
-        for contact in self.scene.px.get_contacts():
-            for k in (0, 1):
-                if contact.bodies[k] is body and (shape is None or contact.shapes[k] is shape) \
-                        and any(np.abs(p.impulse).sum() > 0 for p in contact.points):
-                    out.append(contact.bodies[1 - k])
-        return out
+        simulated contacts with a non-zero impulse (``presses``, asked only of the body's own contacts: the
+        watches call this every frame), one entry per contact."""
+        return [contact.bodies[1 - k] for contact in self.scene.px.get_contacts() for k in (0, 1)
+                if contact.bodies[k] is body and (shape is None or contact.shapes[k] is shape) and presses(contact)]
 
     def hand_links_among(self, bodies: list[Any]) -> list[str]:
         """Names of the hand links among the PhysX ``bodies``. Empty without an agent."""
@@ -336,6 +332,11 @@ class PRLTaskEnv(BaseEnv):
         """Restore ``watch_state``; an unknown name is an error naming it."""
         if values:
             raise ValueError(f"{type(self).__name__} keeps no watch state; got {sorted(values)}")
+
+
+def presses(contact: Any) -> bool:
+    """Whether a PhysX contact presses: a non-zero impulse at some contact point (a touch, not a near miss)."""
+    return any(np.abs(p.impulse).sum() > 0 for p in contact.points)
 
 
 def state_size(layout: dict) -> int:

@@ -12,7 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor
 from sapien import physx
 
-from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
+from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, presses, yaw_matrix
 from prl.geometry import rot_z
 from prl.shapes import (
     BROOM_HANDLE_HALF_LENGTH,
@@ -231,6 +231,7 @@ class PRLSweepEnv(PRLTaskEnv):
             builder.initial_pose = self._cube_pose(i)
             self.cubes.append(builder.build_dynamic(name=f"cube{i}"))
         self._cube_bodies = [cube._bodies[0] for cube in self.cubes]  # PhysX bodies, read every frame
+        self._cube_index = {id(b): i for i, b in enumerate(self._cube_bodies)}  # PhysX body -> cube index
 
     def zone_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The zone as (min (2,), max (2,)) world (x, y) corners."""
@@ -264,29 +265,30 @@ class PRLSweepEnv(PRLTaskEnv):
         self._loose_pushed = np.zeros(n, bool)  # cubes the broom pressed on while no hand link held it
 
     def _after_simulation_step(self) -> None:
-        """Per physics frame in which a cube moves (faster than ``CUBE_MOVING_MPS``): mark the cubes a hand link
-        presses on, and those the broom presses on while no hand link presses on the broom (a broom dropped or
-        knocked onto the debris). One pass over the frame's contacts, only in such frames."""
-        if not any(np.abs(b.get_linear_velocity()).max() > CUBE_MOVING_MPS for b in self._cube_bodies):
+        """Per physics frame in which a cube moves (faster than ``CUBE_MOVING_MPS``; sleeping cubes are skipped):
+        mark the cubes a hand link presses on, and those the broom presses on while no hand link presses on the
+        broom (a broom dropped or knocked onto the debris). One pass over the frame's contacts, only in such frames;
+        a contact is asked whether it presses only if it joins a cube to the broom or the hand, and the grip's
+        contacts only when the broom pushed a cube."""
+        if not any(not b.is_sleeping and np.abs(b.get_linear_velocity()).max() > CUBE_MOVING_MPS
+                   for b in self._cube_bodies):
             return
         broom = self.tool._bodies[0]
         hand = self._hand_link_names
-        index = {id(b): i for i, b in enumerate(self._cube_bodies)}
-        by_broom, broom_held = [], False
-        for contact in self.scene.px.get_contacts():
-            if not any(np.abs(pt.impulse).sum() > 0 for pt in contact.points):
-                continue
+        index = self._cube_index
+        by_broom, grip = [], []
+        for contact in self.scene.px.get_contacts():  # identity checks first: most contacts concern no cube
             a, b = contact.bodies
             for cube, other in ((a, b), (b, a)):
                 i = index.get(id(cube))
-                if i is not None:
-                    if other.entity in hand:
-                        self._hand_touched[i] = True
-                    elif other is broom:
+                if i is not None and (other is broom or other.entity in hand) and presses(contact):
+                    if other is broom:
                         by_broom.append(i)
+                    else:
+                        self._hand_touched[i] = True
             if (a is broom and b.entity in hand) or (b is broom and a.entity in hand):
-                broom_held = True
-        if by_broom and not broom_held:
+                grip.append(contact)
+        if by_broom and not any(presses(c) for c in grip):  # no hand link presses on the broom: it is loose
             self._loose_pushed[by_broom] = True
 
     def watch_state(self) -> dict[str, float]:
