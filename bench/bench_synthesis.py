@@ -9,7 +9,7 @@ the cost of the orchestration (1.0 = none; worker start-up and an unevenly endin
 count against it). Then the paper profile's wall time is extrapolated from the 2-worker rate.
 Run it long enough (minutes per run) that the workers' start-up (about 10 s of imports, once per run)
 and the last, unevenly ending shard do not dominate: ``--demos 120 --shards 12``.
-``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--no-bare]``
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
 """
 
 from __future__ import annotations
@@ -19,24 +19,27 @@ import tempfile
 import time
 from pathlib import Path
 
+from prl.proposal import PROPOSALS, ProposalConfig
 
-def _run(workers: int, demos: int, shards: int, seed: int, out: Path) -> tuple[float, int, int]:
+
+def _run(workers: int, demos: int, shards: int, seed: int, out: Path, proposal: ProposalConfig) -> tuple[float, int, int]:
     from flows.synthesize import shard_specs, synthesize  # heavy: loads the simulator
 
     specs = shard_specs(["hammer"], demos, seed, shards, out)
     t0 = time.perf_counter()
-    results = synthesize(specs, workers=workers)
+    results = synthesize(specs, workers=workers, proposal=proposal)
     wall = time.perf_counter() - t0
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
 
 
-def _run_bare(demos: int, shards: int, seed: int, out: Path) -> tuple[float, int, int]:
+def _run_bare(demos: int, shards: int, seed: int, out: Path, proposal: ProposalConfig) -> tuple[float, int, int]:
     import envs  # noqa: F401  (registers the hand and the tasks)
-    from envs.synthesis import run_shard
+    from envs.synthesis import run_shard, synthesize_rounds
     from flows.synthesize import shard_specs
 
     t0 = time.perf_counter()
-    results = [run_shard(spec) for spec in shard_specs(["hammer"], demos, seed, shards, out)]
+    results = synthesize_rounds(shard_specs(["hammer"], demos, seed, shards, out), proposal,
+                                lambda todo: [run_shard(spec, keep_env=True) for spec in todo])
     wall = time.perf_counter() - t0
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
 
@@ -47,13 +50,18 @@ def main() -> None:
     parser.add_argument("--shards", type=int, default=4, help="more shards than workers evens out the load")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--no-bare", action="store_true", help="skip the bare in-process run")
+    parser.add_argument("--proposal", default="adaptive", choices=PROPOSALS,
+                        help="the pipeline's default, adaptive: rounds with a barrier between them")
+    parser.add_argument("--round-attempts", type=int, default=ProposalConfig.round_attempts)
     args = parser.parse_args()
+    proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, 2):
-            rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}")
-        bare = None if args.no_bare else _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare")
-    print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}")
+            rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}", proposal)
+        bare = None if args.no_bare else _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare", proposal)
+    print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}, {args.proposal} "
+          f"proposal ({args.round_attempts} attempts per shard and round)")
     print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
     for workers, (wall, demos, attempts) in rows.items():
         print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")

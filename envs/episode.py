@@ -19,6 +19,7 @@ import numpy as np
 from envs import ik
 from envs.execution import EpisodeResult
 from envs.hand_model import palm_anchors
+from envs.reach import HandReach
 from envs.scene_record import SceneParts, sapien_pose7
 from envs.sensors import ContactSensors
 from envs.tasks.base import pose_from_matrix
@@ -258,6 +259,7 @@ class Episode:
         perf_counter = time.perf_counter
         physics_time = 0.0
         hook_time = 0.0  # time spent in on_stage_end, left out of wall_time_s
+        decided = ""  # why the task says the failure is decided (ExecutorConfig.end_decided), "" while it is not
         k = 0
         t0 = time.perf_counter()
         for frame in range(n):
@@ -269,10 +271,14 @@ class Episode:
                 if stage == grasp_stage:  # the grasp has just ended
                     anchors_at_grasp = self.ik.anchors_world(self._qpos(), root=self.root)
                     gv_at_grasp = self.env.tool_gv_world()
-                stage = starts[frame]
+                ended, stage = stage, starts[frame]
                 stage_start = frame
                 self.env.on_stage_start(STAGES[stage])  # every task is told; a task may keep a reference
                 plan_targets, moving = self._stage_trajectory(stage, frames[stage], waypoints, lower, upper)
+                if cfg.end_decided and ended >= 0:
+                    decided = self._failure_decided(ended, stage, frames, waypoints, lower, upper)
+                    if decided:  # nothing of this stage is stepped: the last stepped frame is frame - 1
+                        break
             if moving.size:
                 target = plan_targets[frame - stage_start]
                 for i in moving:
@@ -313,7 +319,7 @@ class Episode:
                 if blowup:
                     break
         wall = time.perf_counter() - t0 - hook_time
-        if on_stage_end is not None and stage >= 0:
+        if on_stage_end is not None and stage >= 0 and not decided:  # (the ended stage's hook already ran)
             on_stage_end(STAGES[stage], frame)  # the last stepped frame (n - 1 unless it blew up)
         rec = {key: value[:k] for key, value in rec.items()}
         info = self.env.evaluate()
@@ -324,14 +330,18 @@ class Episode:
             outcome["fail"] = True
             self.notes.append(reason)
             self.fault = "blowup"
+        if decided:  # the measures are those of the early end; the success is what the full episode would give
+            outcome["success"] = False
+            outcome["decided"] = f"after {STAGES[ended]}: {decided}"
         success = bool(outcome.get("success", False)) and not blowup
-        n_stepped = frame + 1
+        n_stepped = frame if decided else frame + 1
         return EpisodeResult(
             plan=self.plan.copy(), outcome=outcome, success=success, anchors_at_grasp=anchors_at_grasp,
             gv_at_grasp=tuple(np.asarray(x).copy() for x in gv_at_grasp), stage_frames=frames,
-            wall_time_s=wall, physics_time_s=physics_time, fps=(n if not blowup else n_stepped) / wall if wall > 0 else 0.0,
+            wall_time_s=wall, physics_time_s=physics_time,
+            fps=(n if not (blowup or decided) else n_stepped) / wall if wall > 0 else 0.0,
             notes=self.notes, fault=self.fault, scene_bodies=self.parts.bodies, scene_joints=self.parts.joints,
-            **rec,
+            frames_stepped=n_stepped, decided=outcome.get("decided", ""), **rec,
         )
 
     def _stage_trajectory(self, stage: int, n_frames: int, waypoints: dict[int, np.ndarray],
@@ -339,15 +349,7 @@ class Episode:
         """Per-frame targets (n_frames, 30) of a stage (min-jerk ramp from the current target to the
         stage's waypoint, planned now from the measured state) and the joints whose target moves."""
         start_q = self.current_target.copy()
-        try:
-            end_q = self._plan_stage(stage, waypoints, start_q)
-            if not np.all(np.isfinite(end_q)):
-                raise ValueError(f"non-finite joint target {np.round(end_q, 4).tolist()}")
-        except PLANNING_ERRORS as exc:  # unreachable: hold still, the plan then fails physically
-            self.notes.append(f"{STAGES[stage]}: {type(exc).__name__}: {exc}")
-            self.fault = self.fault or "unreachable"
-            end_q = start_q.copy()
-        end_q = np.clip(end_q, lower, upper)
+        end_q = self._stage_end(stage, waypoints, start_q, lower, upper)
         waypoints[stage] = end_q
         if STAGES[stage] == "motion":
             settle = int(n_frames * self.cfg.strike_settle_frac)
@@ -362,6 +364,45 @@ class Episode:
         targets = start_q + (end_q - start_q) * _min_jerk(s)
         moving = np.nonzero(np.abs(end_q - start_q) > 1e-12)[0]
         return targets, moving
+
+    def _stage_end(self, stage: int, waypoints: dict[int, np.ndarray], start_q: np.ndarray, lower: np.ndarray,
+                   upper: np.ndarray, record: bool = True) -> np.ndarray:
+        """The waypoint of ``stage`` starting from the targets ``start_q``, within the joint limits; ``start_q`` when
+        it cannot be planned (the stage holds still). ``record``: note why and set the fault ``unreachable`` then
+        (False: a look ahead, which must leave the episode as it is)."""
+        try:
+            end_q = self._plan_stage(stage, waypoints, start_q)
+            if not np.all(np.isfinite(end_q)):
+                raise ValueError(f"non-finite joint target {np.round(end_q, 4).tolist()}")
+        except PLANNING_ERRORS as exc:  # unreachable: hold still, the plan then fails physically
+            if record:
+                self.notes.append(f"{STAGES[stage]}: {type(exc).__name__}: {exc}")
+                self.fault = self.fault or "unreachable"
+            end_q = start_q.copy()
+        return np.clip(end_q, lower, upper)
+
+    def _failure_decided(self, ended: int, stage: int, frames: np.ndarray, waypoints: dict[int, np.ndarray],
+                         lower: np.ndarray, upper: np.ndarray) -> str:
+        """The task's answer (``PRLTaskEnv.failure_decided``) at the boundary after stage ``ended``, ``stage`` having
+        just been planned."""
+        def path() -> np.ndarray | None:  # computed only if the task asks where the hand goes
+            return self._remaining_path(stage, frames, waypoints, lower, upper)
+
+        return self.env.failure_decided(STAGES[ended], HandReach(self.env, path, self.root))
+
+    def _remaining_path(self, stage: int, frames: np.ndarray, waypoints: dict[int, np.ndarray], lower: np.ndarray,
+                        upper: np.ndarray) -> np.ndarray | None:
+        """Waypoints (n, 30) of the joint targets still to come, ``stage`` having just been planned: the measured
+        joints, the current target, this stage's waypoint, then each later stage's, planned ahead as that stage
+        will plan it (from the previous waypoint alone). None when a stage still to run plans from the state it
+        will find (pregrasp, transport) or closes its joints on windows of its own (grasp), not on one line."""
+        later = [s for s in range(stage + 1, len(STAGES)) if frames[s] > 0]
+        if STAGES[stage] == "grasp" or any(STAGES[s] in ("pregrasp", "grasp", "transport") for s in later):
+            return None
+        path = [self._qpos(), self.current_target.copy(), waypoints[stage]]
+        for s in later:
+            path.append(self._stage_end(s, waypoints, path[-1], lower, upper, record=False))
+        return np.stack(path)
 
     def _plan_stage(self, stage: int, waypoints: dict[int, np.ndarray], start_q: np.ndarray) -> np.ndarray:
         name = STAGES[stage]

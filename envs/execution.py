@@ -44,12 +44,22 @@ class ExecutorConfig:
     """Physics frames of the observation phase that precedes the plan (hand held at home, tool and
     object settling; x_manip is sampled from it, see :meth:`PlanExecutor.observe`); None: ``observe_s``."""
     observe_s: float = 0.08
+    end_decided: bool = False
+    """End a plan episode early, as a failure, once its task says that it can no longer succeed
+    (``PRLTaskEnv.failure_decided``, asked at every stage boundary): the frames left are not stepped, and the
+    result says so (``EpisodeResult.decided``, ``outcome["decided"]``; ``frames_stepped`` counts the frames run).
+    A success always runs to its end. The measures in ``outcome`` are then those at the early end, not the full
+    episode's: only for callers that keep nothing of a failed episode but that it failed (synthesis attempts),
+    not where a failure's final measure or trajectory is read (the LN's reward). False (the default): every
+    episode runs its ``n_frames``, exactly as without this option."""
 
     def __post_init__(self) -> None:
         if self.n_frames is not None and self.n_frames < 100:
             raise ValueError(f"n_frames must be >= 100, got {self.n_frames!r}")
         if self.observe_frames is not None and self.observe_frames < X_MANIP_SAMPLES:
             raise ValueError(f"observe_frames must be >= {X_MANIP_SAMPLES}, got {self.observe_frames!r}")
+        if not isinstance(self.end_decided, bool):
+            raise TypeError(f"end_decided must be True or False, got {self.end_decided!r}")
         if self.record_every is not None and self.record_every < 1:
             raise ValueError(f"record_every must be >= 1, got {self.record_every!r}")
         for name in ("episode_s", "strike_ramp_s", "observe_s"):
@@ -117,6 +127,11 @@ class EpisodeResult:
     """Part of ``wall_time_s`` spent inside ``scene.step()`` (the raw PhysX cost of this episode)."""
     fps: float = 0.0
     """Physics frames per second of the loop (incl. target updates and recording)."""
+    frames_stepped: int = 0
+    """Physics frames of the plan episode actually stepped: ``n_frames``, fewer after a blow-up or an early end."""
+    decided: str = ""
+    """Why the episode was ended early as a decided failure (``ExecutorConfig.end_decided``): the stage after
+    which and the task's reason (as ``outcome["decided"]``); "" when it ran to its end."""
     notes: list[str] = field(default_factory=list)
     """Planner notes (e.g. an unreachable target replaced by the nearest reachable one)."""
     fault: str = ""

@@ -34,7 +34,9 @@ frame with ``env.step_physics()`` (``scene.step()`` and the task's per-frame wat
 
 Physical honesty: the executor never sets a pose, velocity or joint state of the tool or the
 object, adds no joint or constraint, and the outcome is the task's ``evaluate()`` of the
-simulated state. NaN / blow-ups end the episode as a failure.
+simulated state. NaN / blow-ups end the episode as a failure. With ``ExecutorConfig.end_decided`` an
+episode also ends, as a failure, at the first stage boundary where its task says that it can no longer
+succeed (``PRLTaskEnv.failure_decided``; ``EpisodeResult.decided`` says why).
 
 The stage data are in ``prl.stages``, the config and result types in ``envs.execution``, the stepping
 loop in ``envs.episode``. Success rates of a task's plans: ``python -m envs.trials --task hammer``.
@@ -81,7 +83,8 @@ class PlanExecutor:
         frame's index; the simulated state is then the one at the end of the stage (e.g. to
         render a picture of it). The hook must not change the simulation. After a blow-up it is
         called for the stage that blew up (with the last stepped frame) and not for the stages
-        that were never reached. It is invoked only at stage boundaries, never per frame; None
+        that were never reached; after an early end (``ExecutorConfig.end_decided``), for each stage that ran and
+        for none after. It is invoked only at stage boundaries, never per frame; None
         (the default) costs nothing. Time spent in the hook is not counted in ``wall_time_s``/``fps``.
         """
         plan = self.validate(plan)

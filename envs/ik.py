@@ -63,6 +63,15 @@ def link_pose(q: Any, link: str = PALM_LINK, root: np.ndarray | None = None) -> 
     return matrix if root is None else np.asarray(root, dtype=np.float64) @ matrix
 
 
+def link_poses(qs: Any, links: list[str], root: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """World 4x4 poses (K, 4, 4) of each of ``links`` for the joint vectors ``qs`` (K, 30), in one batched pass
+    (``root`` as in :func:`link_pose`)."""
+    qs = np.asarray(qs, dtype=np.float64).reshape(-1, len(JOINT_NAMES))
+    fk = _chain().forward_kinematics(torch.as_tensor(qs))
+    root = np.eye(4) if root is None else np.asarray(root, dtype=np.float64)
+    return {name: np.einsum("ij,kjl->kil", root, fk[name].get_matrix().numpy()) for name in links}
+
+
 def palm_pose(q: Any, root: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(position (3,), rotation (3, 3)) of the palm link frame in the world."""
     m = link_pose(q, PALM_LINK, root)

@@ -1,14 +1,24 @@
-"""Scene synthesis: domain-randomised scenes x plans sampled from the task prior -> kept demos.
+"""Scene synthesis: domain-randomised scenes x plans drawn from the task's proposal -> kept demos.
 
 Work is split into a fixed number of shards. Attempt ``j`` of shard ``k`` uses a scene seed and
 a plan drawn from generators seeded by ``(run seed, task, k, j)`` only, so the result does not
 depend on how many workers run the shards, nor on the order they run in. A shard stops when it
 has its share of successes (or ``max_attempts`` attempts).
 
+Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal, which
+changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
+every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
+rounds < r of all the task's shards, and round r + 1 starts when round r has ended everywhere. A prior run
+is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
+
 On disk, per shard ``<out>/<task>/shard<k>/``:
 
-* ``attempts.jsonl`` - one line per finished attempt (seed, plan, success, measure; ``fault`` when the
-  executor ended a failed plan itself, ``error`` with the exception text when the attempt raised), appended
+* ``attempts.jsonl`` - one line per finished attempt (seed, plan, its ``round``, ``proposal_logp`` and
+  ``prior_logp``: the plan's log-probability under the proposal that drew it and under the task's prior,
+  success, measure; ``fault`` when the
+  executor ended a failed plan itself, ``decided`` with the reason and ``frames`` with the physics frames
+  stepped when the attempt was ended early as a decided failure (``ExecutorConfig.end_decided``: its measure is
+  then the one at the early end), ``error`` with the exception text when the attempt raised), appended
   and flushed, so the yield per task and per plan dimension, and how often attempts fault or err, can be
   computed. An attempt that raises (a bug, a PhysX error) is recorded as failed and the shard goes on
   with a rebuilt environment;
@@ -25,9 +35,12 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import time
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -39,6 +52,7 @@ from envs.trials import error_text
 from prl.constants import EPISODE_FRAMES
 from prl.demo import from_episode, load_demo, save_demo
 from prl.plb import load_plb
+from prl.proposal import ProposalConfig, as_probs, log_prob, round_proposals, sample_plan
 from prl.stages import FAULTS
 
 _log = logging.getLogger(__name__)
@@ -62,12 +76,22 @@ class ShardSpec:
     """Give up after this many attempts (a task whose prior almost never succeeds)."""
     n_frames: int = EPISODE_FRAMES
     """Physics frames per plan episode."""
+    proposal: tuple[tuple[float, ...], ...] | None = None
+    """Per-dimension probabilities the plans of this call are drawn from (None: the task's prior)."""
+    round: int = 0
+    """The round these attempts belong to (recorded in each attempt's line)."""
+    round_end: int | None = None
+    """Stop before this attempt index (the end of the round; None: run until the shard is done)."""
 
     def __post_init__(self) -> None:
         if self.n_success < 0:
             raise ValueError(f"n_success must be >= 0, got {self.n_success!r}")
         if self.max_attempts <= 0:
             raise ValueError(f"max_attempts must be > 0, got {self.max_attempts!r}")
+
+    def done(self, attempts: int, successes: int) -> bool:
+        """Whether a shard with these counts has nothing left to do (its share kept, or out of attempts)."""
+        return successes >= self.n_success or attempts >= self.max_attempts
 
     @property
     def dir(self) -> Path:
@@ -85,6 +109,8 @@ class ShardResult:
     demo_paths: tuple[Path, ...]
     errors: int = 0
     """Attempts that raised (recorded as failed, with the error text in ``attempts.jsonl``)."""
+    seconds: float = 0.0
+    """Wall time of this call (not written to any file: the files stay byte-identical across runs)."""
 
 
 def attempt_seeds(run_seed: int, task: str, shard: int, attempt: int) -> tuple[int, int]:
@@ -121,8 +147,43 @@ def _append(shard_dir: Path, row: dict) -> None:
         fh.flush()
 
 
-def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
-    """Run (or resume) one shard until it holds ``spec.n_success`` demos."""
+_KEPT: dict[tuple[str, int], tuple[Any, PlanExecutor, ExitStack]] = {}
+"""Environments kept alive between ``run_shard`` calls of one process (``keep_env``): a Dask worker runs many
+shard-rounds of a few tasks, and rebuilding the env for each would cost more than a round's worth of resets."""
+
+
+def _environment(task: str, n_frames: int, keep: bool, cleanup: ExitStack) -> tuple[Any, PlanExecutor]:
+    """The task's env and executor: a kept one (``keep``), or a new one closed by ``cleanup``."""
+    key = (task, int(n_frames))
+    if keep and key in _KEPT:
+        return _KEPT[key][:2]
+    stack = ExitStack()
+    env = make_env(task)
+    stack.callback(env.close)
+    stack.enter_context(fast_resets())
+    # a failed attempt keeps nothing but its failure: it ends as soon as its task says it can no longer succeed
+    # (envs.tasks.base.PRLTaskEnv.failure_decided; the same successes as full episodes on 500 attempts per task,
+    # bench/bench_decided.py); kept demos, successes, always run to their end
+    executor = PlanExecutor(env, ExecutorConfig(n_frames=n_frames, end_decided=True))
+    if keep:
+        _KEPT[key] = (env, executor, stack)
+    else:
+        cleanup.push(stack)
+    return env, executor
+
+
+def _drop_environment(task: str, n_frames: int) -> None:
+    """Close a kept env (after an attempt raised: the next attempt gets a fresh one)."""
+    kept = _KEPT.pop((task, int(n_frames)), None)
+    if kept is not None:
+        kept[2].close()
+
+
+def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -> ShardResult:
+    """Run (or resume) one shard until it holds ``spec.n_success`` demos, or until ``spec.round_end``.
+
+    ``keep_env``: leave the environment open in this process for the next call (a worker's)."""
+    t0 = time.perf_counter()
     spec.dir.mkdir(parents=True, exist_ok=True)
     path = spec.dir / "attempts.jsonl"
     rows = read_attempts(spec.dir)
@@ -134,6 +195,9 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     successes = sum(r["success"] for r in rows)
     attempt = len(rows)
     plb = load_plb()
+    prior = plb.prior(spec.task)
+    probs = as_probs(spec.proposal) if spec.proposal is not None else prior
+    end = spec.max_attempts if spec.round_end is None else min(spec.max_attempts, spec.round_end)
 
     measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
     env = executor = None
@@ -142,39 +206,43 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
     if progress:
         bar = tqdm(total=spec.n_success, initial=successes, desc=f"{spec.task} shard {spec.shard}", unit="demo")
     try:
-        while successes < spec.n_success and attempt < spec.max_attempts:
+        while successes < spec.n_success and attempt < end:
             demo_path = spec.dir / f"ep{attempt:06d}.npz"
             scene_seed, plan_seed = attempt_seeds(spec.run_seed, spec.task, spec.shard, attempt)
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
-                row = {"attempt": attempt, "seed": scene_seed, "plan": demo.plan.tolist(), "success": True,
-                       "measure": float(demo.outcome.get(measure_key, float("nan")))}
+                plan = [int(v) for v in demo.plan]
+                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec.round, probs, prior, plan),
+                       "success": True, "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
-                    env = make_env(spec.task)
-                    cleanup.callback(env.close)
-                    cleanup.enter_context(fast_resets())
-                    executor = PlanExecutor(env, ExecutorConfig(n_frames=spec.n_frames))
+                    env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)
                 rng = np.random.default_rng(plan_seed)
-                plan = plb.sample_plan(spec.task, rng)
+                plan = sample_plan(probs, rng)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
-                row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan]}
+                row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
+                       **_logps(spec.round, probs, prior, plan)}
                 try:
                     result = executor.run(plan, seed=scene_seed)
                     if result.success:
-                        save_demo(from_episode(spec.task, scene_seed, text, result, env), demo_path)
+                        save_demo(from_episode(spec.task, scene_seed, text, result, env,
+                                               proposal_logp=row["proposal_logp"], prior_logp=row["prior_logp"]),
+                                  demo_path)
                 except Exception as exc:  # noqa: BLE001 - one attempt's error must not end the run
                     row |= {"success": False, "measure": float("nan"), "error": error_text(exc)}
                     _log.warning("%s shard %d attempt %d raised: %s", spec.task, spec.shard, attempt, row["error"])
                     cleanup.close()  # a fresh environment for the next attempt
                     cleanup = ExitStack()
+                    _drop_environment(spec.task, spec.n_frames)
                     env = executor = None
                 else:
                     row |= {"success": bool(result.success),
                             "measure": float(result.outcome.get(measure_key, float("nan")))}
                     if result.fault and not result.success:  # (a demo's row, rebuilt after a kill, has none)
                         row["fault"] = result.fault
+                    if result.decided:  # ended early: its measure is the one at the early end
+                        row |= {"decided": result.decided, "frames": int(result.frames_stepped)}
             _append(spec.dir, row)
             successes += row["success"]
             attempt += 1
@@ -185,19 +253,76 @@ def run_shard(spec: ShardSpec, progress: bool = False) -> ShardResult:
         if bar is not None:
             bar.close()
         cleanup.close()
-    demos = tuple(sorted(spec.dir.glob("ep*.npz")))
-    errors = sum("error" in r for r in read_attempts(spec.dir))
-    return ShardResult(task=spec.task, shard=spec.shard, attempts=attempt, successes=successes, demo_paths=demos,
-                       errors=errors)
+    return replace(shard_result(spec), seconds=time.perf_counter() - t0)
 
 
-def yield_report(out_dir: Path, task: str) -> dict[str, float]:
+def _logps(round_index: int, probs: Any, prior: Any, plan: Any) -> dict[str, Any]:
+    return {"round": int(round_index), "proposal_logp": log_prob(probs, plan), "prior_logp": log_prob(prior, plan)}
+
+
+def shard_result(spec: ShardSpec) -> ShardResult:
+    """What a shard holds on disk."""
+    rows = read_attempts(spec.dir)
+    return ShardResult(task=spec.task, shard=spec.shard, attempts=len(rows), successes=sum(r["success"] for r in rows),
+                       demo_paths=tuple(sorted(spec.dir.glob("ep*.npz"))), errors=sum("error" in r for r in rows))
+
+
+def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, list[ShardSpec]]:
+    """The next round of a run: its index and, for every unfinished shard, its spec for that round with the
+    round's proposal (``prl.proposal.round_proposals`` over the attempt logs of the earlier rounds). A prior
+    run is one round without limit. ``(-1, [])`` when every shard is done."""
+    logs = {(s.task, s.shard): read_attempts(s.dir) for s in specs}
+    todo = [s for s in specs if not s.done(len(logs[s.task, s.shard]),
+                                           sum(r["success"] for r in logs[s.task, s.shard]))]
+    if not todo:
+        return -1, []
+    if cfg.kind == "prior":
+        return 0, [replace(s, proposal=None, round=0, round_end=None) for s in todo]
+    r = min(len(logs[s.task, s.shard]) // cfg.round_attempts for s in todo)
+    plb = load_plb()
+    out = []
+    proposals: dict[str, Any] = {}
+    for s in todo:
+        if len(logs[s.task, s.shard]) >= (r + 1) * cfg.round_attempts:  # ended this round before a kill
+            continue
+        if s.task not in proposals:
+            rows = [row for t in specs if t.task == s.task for row in logs[t.task, t.shard]]  # shard order
+            by_round = [np.array([row["plan"] for row in rows if row["success"]
+                                  and row["attempt"] // cfg.round_attempts == k], dtype=np.int64)
+                        for k in range(r)]
+            proposals[s.task] = round_proposals(plb.prior(s.task), by_round, cfg)[r]
+        out.append(replace(s, proposal=tuple(tuple(float(v) for v in p) for p in proposals[s.task]), round=r,
+                           round_end=(r + 1) * cfg.round_attempts))
+    return r, out
+
+
+def synthesize_rounds(specs: Sequence[ShardSpec], cfg: ProposalConfig,
+                      run: Callable[[list[ShardSpec]], list[ShardResult]],
+                      on_round: Callable[[int, list[ShardResult]], None] | None = None) -> list[ShardResult]:
+    """Run (or resume) a synthesis run round by round (module docstring): ``run`` executes one round's shard
+    specs (in this process, or on Dask workers) and returns their results; ``on_round(round, results)`` is
+    called after each. Returns each spec's ``shard_result`` at the end, in the order of ``specs``."""
+    while True:
+        r, todo = round_specs(specs, cfg)
+        if not todo:
+            break
+        results = run(todo)
+        if on_round is not None:
+            on_round(r, results)
+    return [shard_result(s) for s in specs]
+
+
+def yield_report(out_dir: Path, task: str, n_frames: int = EPISODE_FRAMES) -> dict[str, float]:
     """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised
-    (``errors``) and that the executor ended itself (``faults/<fault>``), from the attempt logs."""
+    (``errors``), that the executor ended itself (``faults/<fault>``) and that ended early as decided failures
+    (``decided``), and the plan-episode physics frames stepped per attempt (``n_frames`` each, but those ended
+    early), from the attempt logs."""
     rows = [r for d in sorted((Path(out_dir) / task).glob("shard*")) for r in read_attempts(d)]
     report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
     report["yield"] = report["successes"] / report["attempts"] if rows else 0.0
     report["errors"] = float(sum("error" in r for r in rows))
+    report["decided"] = float(sum("decided" in r for r in rows))
+    report["frames_per_attempt"] = float(np.mean([r.get("frames", n_frames) for r in rows])) if rows else 0.0
     for fault in FAULTS:
         report[f"faults/{fault}"] = float(sum(r.get("fault") == fault for r in rows))
     plb = load_plb()

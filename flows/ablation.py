@@ -10,6 +10,11 @@ task's success criterion changed) and replaces their ``eval`` without retraining
 from the points' runs: success rate against timesteps and against physics frames, mean over seeds with a
 min-max band (top: physics-guided vs joint control; bottom: demonstration steps); ``--draw-from`` redraws it
 from the summaries of one or more sweeps' output directories.
+
+With ``--results-dir`` (the experiment: ``docs/results/ln``) each finished point also writes its committed summary
+there, and the points whose committed summary holds today's settings, code version and dataset count as done
+whatever the MLflow store holds (``flows.ln_results``: what invalidates one); ``python -m flows.report`` makes
+``docs/results.md`` from them.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import Any
 
 from prefect import flow
 
+from flows.ln_results import committed_summaries, ln_committed_point, point_records
 from flows.train_ln import LNPoint, LNSetup, ln_point, ln_reevaluate, write_demonstrations
 from prl import tracking
 from prl.cli import add_config_arguments, config_overrides
@@ -119,6 +125,7 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
             raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
                              f"{str(root)!r}; synthesise more or sweep fewer steps")
     out = cfg.output_dir
+    results_dir = cfg.results_dir.resolve() if cfg.results_dir is not None else None
     settings = sweep_settings(cfg)
     key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or variants resumes
     setup = LNSetup(demo_dir=out / "demos", pointnet_path=cfg.pointnet_path, out_dir=out / "points",
@@ -134,6 +141,13 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
         done = finished_points(parent.info.run_id)
         summaries = {p.name: json.loads((setup.out_dir / f"{p.name}.json").read_text()) for p in points
                      if p.name in done and (setup.out_dir / f"{p.name}.json").is_file()}
+        records: dict[str, Any] = {}
+        if results_dir is not None:  # the committed summaries decide what is done, not this store
+            records = point_records(points, setup, root, cfg.eval_seed)
+            summaries, notes = committed_summaries(points, results_dir, records)
+            notes += [f"{name}: finished in this MLflow sweep, but without a valid summary in {str(results_dir)!r}: "
+                      f"re-run" for name in sorted((done & set(records)) - set(summaries))]
+            print("\n".join([f"{len(summaries)} points done in {str(results_dir)!r}", *notes]))
         todo = [p for p in points if p.name not in summaries]
         print(f"sweep {key}: {len(points)} points, {len(summaries)} already finished, {len(todo)} to run "
               f"(MLflow parent {parent.info.run_id})")
@@ -141,7 +155,8 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
             print(f"re-evaluating {len(summaries)} finished points' final policies on {cfg.eval_scenes} scenes")
             summaries.update(_reevaluate(list(summaries.values()), setup, workers, dask_address, make_task_runner))
         if todo:
-            summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner))
+            summaries.update(_fan_out(todo, setup, parent.info.run_id, workers, dask_address, make_task_runner,
+                                      records, results_dir))
         for name, fig in draw_fig8(summaries, out).items():
             mlflow.log_figure(fig, name)
         table = {name: s["eval"] | {"train_seconds": s["train_seconds"]} for name, s in summaries.items()}
@@ -151,10 +166,13 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
 
 
 def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, dask_address: str | None,
-             make_task_runner: Any) -> dict[str, Any]:
+             make_task_runner: Any, records: dict[str, Any], results_dir: Path | None) -> dict[str, Any]:
     @flow(name="prl-ln-points", task_runner=make_task_runner(workers, dask_address))
     def _points(todo: list[LNPoint]) -> list[dict[str, Any]]:
-        futures = [ln_point.submit(p, setup, parent_id) for p in todo]
+        if results_dir is None:
+            futures = [ln_point.submit(p, setup, parent_id) for p in todo]
+        else:
+            futures = [ln_committed_point.submit(p, setup, parent_id, records[p.name], results_dir) for p in todo]
         _watch(parent_id, {p.name for p in todo}, len(todo) * setup.ln.timesteps, futures)
         return [f.result() for f in futures]
 

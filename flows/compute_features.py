@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
@@ -33,7 +34,8 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
     episodes = read_episodes(dataset_root, repo_id)
     x = episode_features(episodes, load_pointnet(pointnet_path), n_points)
     return {"x": x, "plan": episodes.plan, "label": episodes.label, "seeds": episodes.seeds,
-            "tasks": list(episodes.tasks), "texts": list(episodes.texts), "outcomes": list(episodes.outcomes)}
+            "tasks": list(episodes.tasks), "texts": list(episodes.texts), "outcomes": list(episodes.outcomes),
+            "weights": episodes.weights if episodes.weights is not None else np.ones(len(episodes))}
 
 
 @task(name="features", cache_policy=NO_CACHE)

@@ -30,6 +30,8 @@ from prl.rn_policy import DECODINGS, check_pointnet
 
 #: Plan kinds run next to the RN decodings on the same scenes: a plan sampled from the task prior, the expert plan.
 BASELINES: tuple[str, ...] = ("prior", "expert")
+#: The prior baseline's plans are seeded by the run seed plus this (the pipeline's rn-eval; ``--prior-seed``).
+PRIOR_SEED_OFFSET = 31
 
 
 @dataclass(frozen=True)
@@ -47,7 +49,15 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
     """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings`` and two baselines: a
     plan sampled from the task prior the demos were drawn from ('prior') and the task's hand-written
     expert plan, the same on every scene ('expert'); the outcomes of each, keyed by decoding or baseline."""
-    from envs.trials import plan_set, run_policy, run_trials  # heavy: loads the simulator
+    return {**rn_outcomes(rn_path, pointnet_path, task_name, seeds, n_points, n_frames, randomization, decodings),
+            **baseline_outcomes(task_name, seeds, n_frames, randomization, prior_seed)}
+
+
+def rn_outcomes(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[int], n_points: int, n_frames: int,
+                randomization: float, decodings: tuple[str, ...] = DECODINGS) -> dict[str, list]:
+    """On each of ``seeds``' scenes execute the RN's plan under each of ``decodings``; the outcomes of each
+    (``envs.trials.TrialOutcome``), keyed by decoding. ValueError when the PointNet is not the RN's."""
+    from envs.trials import run_policy  # heavy: loads the simulator
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
     from prl.rn_checkpoint import load_rn
@@ -62,10 +72,18 @@ def evaluate_in_sim(rn_path: Path, pointnet_path: Path, task_name: str, seeds: l
         policy = rn_policy(model, pointnet, task_name, texts, seeds, n_points, kind)
         out[kind] = run_policy(task_name, policy, seeds, n_frames=n_frames, randomization=randomization,
                                desc=f"{task_name} {kind} plans (x{randomization:g} ranges)")
-    for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True):
-        out[kind] = run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds,
-                               n_frames=n_frames, randomization=randomization)
     return out
+
+
+def baseline_outcomes(task_name: str, seeds: list[int], n_frames: int, randomization: float,
+                      prior_seed: int) -> dict[str, list]:
+    """On each of ``seeds``' scenes execute the ``BASELINES``: a plan sampled from the task prior per scene
+    (``envs.trials.plan_set`` seeded ``prior_seed``) and the task's expert plan; the outcomes of each, by kind."""
+    from envs.trials import plan_set, run_trials  # heavy: loads the simulator
+
+    return {kind: run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds, n_frames=n_frames,
+                             randomization=randomization)
+            for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True)}
 
 
 @task(name="rn-eval", cache_policy=NO_CACHE)
@@ -82,7 +100,7 @@ def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) ->
         for split, scale in (("train_ranges", 1.0), ("wide_ranges", cfg.wide_randomization)):
             for name in tasks:
                 out = evaluate_in_sim(rn.rn_path, rn.pointnet_path, name, seeds, cfg.n_points, cfg.episode_frames,
-                                      scale, cfg.seed + 31)
+                                      scale, cfg.seed + PRIOR_SEED_OFFSET)
                 print(f"{name} ({split}): plans executed on {len(seeds)} unseen scenes")
                 rates[f"{name}/rn/{split}"] = log_rn_eval(name, split, out)
                 rows += [rate_row(sum(bool(o.success) for o in outs), len(outs), task=name, split=split, plan=kind)
@@ -157,7 +175,7 @@ def check_eval_args(task: str, scenes: int, first_seed: int, randomization: floa
 @flow(name="prl-rn-eval", log_prints=True)
 def evaluate_rn(rn_path: str, pointnet_path: str | None = None, task: str = "hammer", first_seed: int = 10_500_000,
                 scenes: int = 50, randomization: float = 1.0, decodings: Sequence[str] = DECODINGS,
-                frames: int = PipelineConfig.episode_frames, prior_seed: int = 31) -> dict[str, float]:
+                frames: int = PipelineConfig.episode_frames, prior_seed: int = PRIOR_SEED_OFFSET) -> dict[str, float]:
     """Run the RN at ``rn_path`` (decoded each way of ``decodings``) and the two baselines on the scenes of
     seeds ``first_seed .. first_seed + scenes - 1`` with ranges scaled by ``randomization``; one MLflow run
     named ``rn-eval``. Returns the success rate per plan kind."""
@@ -192,7 +210,8 @@ def cli_parser() -> argparse.ArgumentParser:
     parser.add_argument("--decodings", default=",".join(DECODINGS), help="comma-separated RN decodings")
     parser.add_argument("--frames", type=int, default=PipelineConfig.episode_frames,
                         help="physics frames per plan episode")
-    parser.add_argument("--prior-seed", type=int, default=31, help="seed of the prior-sampled baseline plans")
+    parser.add_argument("--prior-seed", type=int, default=PRIOR_SEED_OFFSET,
+                        help="seed of the prior-sampled baseline plans")
     return parser
 
 

@@ -7,11 +7,13 @@ the result does not depend on the number of workers.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
@@ -24,6 +26,7 @@ from flows.plan_trials import Trials
 from prl import tracking
 from prl.config import PipelineConfig
 from prl.constants import EPISODE_FRAMES
+from prl.proposal import ProposalConfig
 
 
 @dataclass(frozen=True)
@@ -35,14 +38,16 @@ class Synthesis:
     reports: dict[str, dict[str, float]]
 
 
-@task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}", cache_policy=NO_CACHE)
+@task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}-round{spec.round}",
+      cache_policy=NO_CACHE)
 def synthesize_shard(spec: ShardSpec) -> ShardResult:
-    """Run or resume one shard. Not cached by Prefect: the shard's own files are its cache
-    (a finished shard returns at once, a killed one resumes)."""
+    """Run or resume one shard's round. Not cached by Prefect: the shard's own files are its cache
+    (a finished shard returns at once, a killed one resumes). The worker keeps the task's environment
+    open for its next round."""
     import envs  # noqa: F401  (registers the hand and the tasks in the Dask worker)
     from envs.synthesis import run_shard
 
-    return run_shard(spec)
+    return run_shard(spec, keep_env=True)
 
 
 def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int, out_dir: Path,
@@ -88,40 +93,113 @@ def worker_env() -> dict[str, str]:
     return {"PREFECT_API_URL": str(url).rstrip("/"), "DASK_LOGGING__DISTRIBUTED": "warning"}
 
 
-def _watch(specs: list[ShardSpec], futures: list, period_s: float = 1.0) -> None:
-    """A progress bar with the live yield, read from the shards' attempt logs until all shards end."""
-    from envs.synthesis import read_attempts  # heavy: loads the simulator
+class _LogTally:
+    """Attempts and successes in the shards' attempt logs, read incrementally (only the bytes appended since the
+    last look): re-parsing every log each second cost the flow process 14% of a core by attempt 5,000 of the
+    paper profile, taken from the two workers on a 2-core machine."""
 
-    target = sum(spec.n_success for spec in specs)
-    with tqdm(total=target, desc="synthesis", unit="demo") as bar:
-        while True:
-            rows = [r for spec in specs for r in read_attempts(spec.dir)]
-            ok = sum(r["success"] for r in rows)
-            bar.n = min(ok, target)
-            bar.set_postfix(attempts=len(rows), yield_=f"{ok / len(rows):.2f}" if rows else "-")
-            bar.refresh()
-            # the Dask futures, not ``f.state``: that is an API call per future per poll, and on two
-            # cores the server's share of CPU came out of the workers'
-            if all(f.wrapped_future.done() for f in futures):
-                break
-            time.sleep(period_s)
+    def __init__(self, specs: list[ShardSpec]) -> None:
+        self.paths = [spec.dir / "attempts.jsonl" for spec in specs]
+        self.offsets = [0] * len(self.paths)
+        self.attempts = self.successes = 0
+
+    def update(self) -> tuple[int, int]:
+        for i, path in enumerate(self.paths):
+            try:
+                size = path.stat().st_size
+            except FileNotFoundError:
+                continue
+            if size < self.offsets[i]:  # rewritten without a torn tail on resume: count it again
+                self.offsets[i] = 0
+                self.attempts = self.successes = 0
+                return self.update()
+            if size == self.offsets[i]:
+                continue
+            with open(path, "rb") as fh:
+                fh.seek(self.offsets[i])
+                data = fh.read(size - self.offsets[i])
+            complete = data[: data.rfind(b"\n") + 1]  # a line being written is counted at the next look
+            self.offsets[i] += len(complete)
+            for line in complete.splitlines():
+                self.attempts += 1
+                self.successes += bool(json.loads(line)["success"])
+        return self.attempts, self.successes
+
+
+def _watch(tally: _LogTally, futures: list, bar: tqdm, period_s: float = 2.0) -> None:
+    """Update ``bar`` with the live demos and yield, read from the shards' attempt logs, until ``futures`` end."""
+    while True:
+        attempts, ok = tally.update()
+        bar.n = min(ok, int(bar.total))
+        bar.set_postfix(attempts=attempts, yield_=f"{ok / attempts:.2f}" if attempts else "-")
+        bar.refresh()
+        # the Dask futures, not ``f.state``: that is an API call per future per poll, and on two
+        # cores the server's share of CPU came out of the workers'
+        if all(f.wrapped_future.done() for f in futures):
+            break
+        time.sleep(period_s)
 
 
 @flow(name="prl-synthesize")
-def _synthesize(specs: list[ShardSpec]) -> list[ShardResult]:
-    futures = [synthesize_shard.submit(spec) for spec in specs]
-    _watch(specs, futures)
-    return [f.result() for f in futures]
+def _synthesize(specs: list[ShardSpec], proposal: ProposalConfig) -> tuple[list[ShardResult], list[dict[str, Any]]]:
+    from envs.synthesis import synthesize_rounds  # heavy: loads the simulator
+
+    timing: list[dict[str, Any]] = []
+    tally = _LogTally(specs)
+    with tqdm(total=sum(s.n_success for s in specs), desc="synthesis", unit="demo") as bar:
+        def run(todo: list[ShardSpec]) -> list[ShardResult]:
+            t0 = time.perf_counter()
+            futures = [synthesize_shard.submit(spec) for spec in todo]
+            _watch(tally, futures, bar)
+            results = [f.result() for f in futures]
+            timing.append({"round": todo[0].round, "wall_s": time.perf_counter() - t0, "results": results})
+            return results
+
+        shards = synthesize_rounds(specs, proposal, run)
+    return shards, timing
 
 
-def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None) -> list[ShardResult]:
-    """Run ``specs`` as a Prefect (sub)flow on a Dask task runner; return the shard results in order."""
-    return _synthesize.with_options(task_runner=make_task_runner(workers, dask_address))(specs)
+def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None,
+               proposal: ProposalConfig | None = None) -> list[ShardResult]:
+    """Run ``specs`` round by round (``envs.synthesis.synthesize_rounds``) as a Prefect (sub)flow on a Dask task
+    runner; return the shard results in order."""
+    return _run(specs, workers, dask_address, proposal or ProposalConfig(kind="prior"))[0]
+
+
+def _run(specs: list[ShardSpec], workers: int, dask_address: str | None,
+         proposal: ProposalConfig) -> tuple[list[ShardResult], list[dict[str, Any]]]:
+    return _synthesize.with_options(task_runner=make_task_runner(workers, dask_address))(specs, proposal)
+
+
+def round_rows(demo_dir: Path, tasks: list[str], timing: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The per-task, per-round record (``prl.proposal.round_table``) with each round's compute run now: the
+    shard-rounds' worker minutes and attempts per worker minute (rounds resumed from an earlier run have none)."""
+    from envs.synthesis import read_attempts  # heavy: loads the simulator
+    from prl.plb import load_plb
+    from prl.proposal import round_table
+
+    sizes = load_plb().sizes
+    out = []
+    for name in tasks:
+        rows = [r for d in sorted((demo_dir / name).glob("shard*")) for r in read_attempts(d)]
+        for entry in round_table(rows, sizes):
+            run = [t for t in timing if t.get("round") == entry["round"]]
+            worker_s = sum(res.seconds for t in run for res in t["results"] if res.task == name)
+            mine = sum(1 for t in run for res in t["results"] if res.task == name)
+            entry = {"task": name, **entry}
+            if mine:
+                entry["worker_minutes"] = worker_s / 60
+                entry["attempts_per_worker_minute"] = entry["attempts"] / (worker_s / 60) if worker_s > 0 else 0.0
+            out.append(entry)
+    return out
 
 
 def synthesis_dir(cfg: PipelineConfig) -> Path:
-    """Where a run's demos live; keyed on what fixes the attempts, so a re-run resumes there."""
-    return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}"
+    """Where a run's demos live; keyed on what fixes the attempts (the proposal's settings too), so a re-run
+    resumes there."""
+    p = cfg.proposal_config()
+    how = "prior" if p.kind == "prior" else f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}"
+    return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}"
 
 
 @flow(name="synthesis", log_prints=True, validate_parameters=False)
@@ -134,30 +212,57 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
     from envs.synthesis import read_attempts, yield_report
 
     tasks = [t.task for t in trials]
+    proposal = cfg.proposal_config()
     with tracking.child_run("synthesis", params={"demos_per_task": cfg.demos_per_task, "n_shards": cfg.n_shards,
-                                                  "workers": cfg.workers, "dask_address": cfg.dask_address}):
+                                                  "workers": cfg.workers, "dask_address": cfg.dask_address,
+                                                  **{f"proposal.{k}": v for k, v in vars(proposal).items()}}):
         demo_dir = synthesis_dir(cfg)
         specs = shard_specs(tasks, cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir, n_frames=cfg.episode_frames)
         already = sum(r["success"] for spec in specs for r in read_attempts(spec.dir))  # resumed runs
         t0 = time.perf_counter()
-        shards = synthesize(specs, workers=cfg.workers, dask_address=cfg.dask_address)
+        shards, timing = _run(specs, cfg.workers, cfg.dask_address, proposal)
         minutes = (time.perf_counter() - t0) / 60
+        rounds = round_rows(demo_dir, tasks, timing)
+        log_rounds(rounds, proposal)
         reports = {}
         for name in tasks:
-            reports[name] = report = yield_report(demo_dir, name)
+            reports[name] = report = yield_report(demo_dir, name, cfg.episode_frames)
             mlflow.log_metrics({f"{name}/{k}": v for k, v in report.items()})
             mlflow.log_dict(report, f"{name}_yield.json")
             print(f"{name}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
-                  f"(yield {report['yield']:.2f}; {int(report['errors'])} raised, "
+                  f"(yield {report['yield']:.2f}; {report['frames_per_attempt']:.0f} physics frames per attempt, "
+                  f"{int(report['decided'])} ended early as decided failures; {int(report['errors'])} raised, "
                   + ", ".join(f"{int(v)} {k.split('/')[1]}" for k, v in report.items() if k.startswith("faults/"))
                   + ")")
         publish_table("synthesis-yield", [
             {"task": name, "attempts": int(r["attempts"]), "demos kept": int(r["successes"]),
-             "yield": round(r["yield"], 3), "raised": int(r["errors"]),
+             "yield": round(r["yield"], 3), "frames per attempt": round(r["frames_per_attempt"], 1),
+             "ended early (decided)": int(r["decided"]), "raised": int(r["errors"]),
              **{f"ended: {k.split('/')[1]}": int(v) for k, v in r.items() if k.startswith("faults/")}}
-            for name, r in reports.items()], "Demonstrations kept per task (plans sampled from the PLB prior)")
+            for name, r in reports.items()], f"Demonstrations kept per task (plans drawn from the {proposal.kind} "
+                                             f"proposal)")
         new = sum(r.successes for r in shards) - already
         mlflow.log_metric("demos_per_minute", new / minutes if minutes > 0 else 0.0)
         mlflow.log_param("demo_dir", str(demo_dir))
     demo_paths = {name: sorted(p for r in shards if r.task == name for p in r.demo_paths) for name in tasks}
     return Synthesis(demo_dir, demo_paths, reports)
+
+
+def log_rounds(rounds: list[dict[str, Any]], proposal: ProposalConfig) -> None:
+    """The per-task, per-round record (``round_rows``) as MLflow metrics (step = round), a JSON artifact and the
+    keyed Prefect table ``synthesis-rounds``."""
+    import mlflow  # heavy: mlflow
+
+    for row in rounds:
+        metrics = {k: float(v) for k, v in row.items() if isinstance(v, int | float) and k not in ("round",)}
+        mlflow.log_metrics({f"{row['task']}/round/{k}": v for k, v in metrics.items()}, step=int(row["round"]))
+    mlflow.log_dict({"proposal": vars(proposal), "rounds": rounds}, "synthesis_rounds.json")
+    publish_table("synthesis-rounds", [
+        {"task": r["task"], "round": r["round"], "attempts": r["attempts"], "successes": r["successes"],
+         "yield (95% CI)": f"{r['yield']:.2f} ({r['yield_ci95'][0]:.2f}-{r['yield_ci95'][1]:.2f})",
+         "demos kept": r["kept"], "distinct plans kept": r["distinct_plans"],
+         "entropy a0..a5 (nats)": " ".join(f"{e:.2f}" for e in r["entropy"]), "effective sample size": round(r["ess"], 1),
+         "attempts per worker-minute": round(r.get("attempts_per_worker_minute", float("nan")), 1),
+         "worker-hours": round(r.get("worker_minutes", float("nan")) / 60, 3)} for r in rounds],
+        f"Synthesis per task and round ({proposal.kind} proposal; {proposal.round_attempts} attempts per shard and "
+        f"round)")

@@ -96,9 +96,9 @@ def write_demonstrations(demo_dir: Path, tasks: list[str], data: dict[str, Any])
     counts = {}
     for name in tasks:
         demos = task_demonstrations(name, task_class(name).measure_key, data["x"], data["plan"], data["tasks"],
-                                    data["outcomes"])
+                                    data["outcomes"], data.get("weights"))
         with atomic_file(demo_dir / f"demos-{name}.npz", "wb") as fh:
-            np.savez(fh, x=demos.x, plan=demos.plan, reward=demos.reward)
+            np.savez(fh, x=demos.x, plan=demos.plan, reward=demos.reward, weight=demos.weight)
         counts[name] = len(demos.x)
     return counts
 
@@ -112,7 +112,7 @@ def read_demonstrations(demo_dir: Path, task_name: str) -> Any:
         raise FileNotFoundError(f"no demonstrations of task {task_name!r} at {str(path)!r} "
                                 f"(the dataset has none, or the RN features were not written)")
     with np.load(path) as f:
-        return Demonstrations(f["x"], f["plan"], f["reward"])
+        return Demonstrations(f["x"], f["plan"], f["reward"], f["weight"] if "weight" in f.files else None)
 
 
 def _log_rows(rows: list[dict[str, float]], prefix: str, step_key: str | None) -> None:
@@ -168,15 +168,18 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
             np.random.default_rng(0).normal(size=(16, *model.observation_space.shape)).astype(np.float32)
         if setup.register:
             mlflow.log_metric("registered_reload_action_mismatches", register_policy(model, check_x))
+        t_eval = time.perf_counter()
         evaluation = evaluate_and_log(point, model, setup)
-        mlflow.log_metrics({"train_seconds": train_s,
+        eval_s = time.perf_counter() - t_eval
+        mlflow.log_metrics({"train_seconds": train_s, "eval_seconds": eval_s,
                             "timesteps_per_second": cfg.timesteps / train_s if train_s > 0 else 0.0})
         for x_key in ("timesteps", "frames"):
             fig = plot_learning_curves({point.variant: [rows]}, x_key, "window_success_rate",
                                        setup.out_dir / f"{point.name}-{x_key}.png", title=point.name)
             mlflow.log_figure(fig, f"curves/{point.name}-{x_key}.png")
         summary = {"point": asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": rows,
-                   "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s, "eval": evaluation}
+                   "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s, "eval_seconds": eval_s,
+                   "eval": evaluation}
         _write_summary(summary, setup.out_dir)
     return summary
 

@@ -15,6 +15,7 @@ from flows.compute_features import Features
 from prl import tracking
 from prl.config import PipelineConfig
 from prl.plb import load_plb
+from prl.proposal import effective_sample_size
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,9 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         def log_epoch(epoch: int, metrics: dict[str, float]) -> None:
             mlflow.log_metrics({k: float(v) for k, v in metrics.items()}, step=epoch)
 
-        model, _ = train_rn(x[train], y[train], rn_cfg, x[val], y[val], on_epoch=log_epoch)
+        weights = np.asarray(data.get("weights", np.ones(len(x))))  # prior / proposal of each demo (prl.proposal)
+        mlflow.log_metrics({"demo_weight_max": float(weights.max()), "demo_weight_ess": effective_sample_size(weights)})
+        model, _ = train_rn(x[train], y[train], rn_cfg, x[val], y[val], on_epoch=log_epoch, w_train=weights[train])
         acc = dict(zip(plb.dim_names, (float(a) for a in per_dim_accuracy(model, x[val], y[val])), strict=True))
         mlflow.log_metrics({f"val_accuracy/{name}": a for name, a in acc.items()})
         print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in acc.items()))
@@ -61,7 +64,8 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         present = list(dict.fromkeys(data["tasks"]))
         probs_by_task = {t: predict_proba(model, x[val][tasks[val] == t]) for t in present if np.any(tasks[val] == t)}
         fig = plot_rn_probabilities(probs_by_task, plb.dim_names, [d.choices for d in plb.dims],
-                                    out_dir / "rn_probabilities.png")
+                                    out_dir / "rn_probabilities.png",
+                                    weights_by_task={t: weights[val][tasks[val] == t] for t in probs_by_task})
         mlflow.log_figure(fig, "rn_probabilities.png")
         model.plan_libraries = plan_libraries(y[train], [data["tasks"][i] for i in train])  # rn-eval's decodings
         model.plan_priors = {t: plb.prior(t) for t in model.plan_libraries}  # the catalogue prior synthesis samples

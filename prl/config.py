@@ -16,6 +16,7 @@ from typing import Any, ClassVar, get_origin, get_type_hints
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 from prl.export_schema import VideoSpec
+from prl.proposal import ProposalConfig
 
 
 class ConfigError(ValueError):
@@ -159,6 +160,16 @@ class PipelineConfig:
     """Successful demonstrations kept per task by scene synthesis (paper: 2,000)."""
     n_shards: int = 2
     """Synthesis shards per task (the unit of parallel work; fixed, so results do not depend on workers)."""
+    proposal: str = ProposalConfig.kind
+    """Where synthesis draws plans from: 'prior' (the task's prior) or 'adaptive' (the cross-entropy method
+    between rounds, floored at a fraction of the prior; the kept demos are weighted back to the prior:
+    ``prl.proposal``)."""
+    round_attempts: int = ProposalConfig.round_attempts
+    """Attempts per shard per synthesis round (the adaptive proposal is updated between rounds)."""
+    proposal_smoothing: float = ProposalConfig.smoothing
+    """Weight of a round's success frequencies in the adaptive proposal's update."""
+    proposal_floor: float = ProposalConfig.floor
+    """Every choice keeps at least this fraction of its prior probability in the adaptive proposal."""
     workers: int = 2
     """Dask worker processes of the local cluster."""
     dask_address: str | None = None
@@ -219,6 +230,10 @@ class PipelineConfig:
                               f"the LN cannot be pre-trained on more demonstrations than synthesis keeps")
         if not _is_int(self.seed) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        try:
+            self.proposal_config()
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         if not isinstance(self.video, bool):
             raise ConfigError(f"video must be true or false, got {self.video!r}")
         try:
@@ -230,6 +245,11 @@ class PipelineConfig:
         if not probe.is_dir() or not os.access(probe, os.W_OK):
             raise ConfigError(f"output_dir {str(out)!r} is not writable (checked {str(probe)!r})")
         object.__setattr__(self, "output_dir", out.resolve())
+
+    def proposal_config(self) -> ProposalConfig:
+        """Synthesis's proposal settings (``prl.proposal``)."""
+        return ProposalConfig(kind=self.proposal, round_attempts=self.round_attempts,
+                              smoothing=self.proposal_smoothing, floor=self.proposal_floor)
 
     def video_spec(self) -> VideoSpec:
         """The dataset video's settings (also when ``video`` is off: they are checked either way)."""
@@ -279,6 +299,10 @@ class AblationConfig:
     """Address of a running Dask scheduler to use instead of a local cluster."""
     output_dir: Path = Path("outputs/ablation")
     """Where demonstrations, checkpoints, point summaries and Fig 8 are written."""
+    results_dir: Path | None = None
+    """Where each finished point also writes its committed summary, <point>-t<timesteps>.json (the experiment:
+    docs/results/ln); a point whose summary there holds today's settings, code version and dataset is not run
+    again (flows/ln_results.py). None: only output_dir's summaries and the MLflow sweep parent resume."""
     n_points: int = 512
     """Surface points per tool / object cloud (the PointNet's)."""
     reevaluate: bool = False
@@ -307,6 +331,14 @@ class AblationConfig:
                 raise ConfigError(f"{name} must be an integer >= {low}, got {value!r}")
         if not isinstance(self.reevaluate, bool):
             raise ConfigError(f"reevaluate must be true or false, got {self.reevaluate!r}")
+        if self.results_dir is not None:
+            if not isinstance(self.results_dir, (str, Path)) or not str(self.results_dir):
+                raise ConfigError(f"results_dir must be a path or None, got {self.results_dir!r}")
+            object.__setattr__(self, "results_dir", Path(self.results_dir))
+            if self.reevaluate:
+                raise ConfigError(f"reevaluate cannot write to results_dir {str(self.results_dir)!r}: a policy trained "
+                                  f"under one code version and judged under another is a result of neither; "
+                                  f"re-evaluate without results_dir, or re-run the points")
         if not isinstance(self.ln, LNConfig):
             raise ConfigError(f"ln must be an LNConfig, got {self.ln!r}")
         _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "by demo_steps, variants and seeds")

@@ -71,6 +71,10 @@ class Demo:
     """The randomised scene values."""
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
     """Recorded arrays, keys ``ARRAY_FIELDS``."""
+    proposal_logp: float | None = None
+    """log-probability of the plan under the synthesis proposal that drew it (``prl.proposal``; None: not recorded)."""
+    prior_logp: float | None = None
+    """log-probability of the plan under the task's prior (the importance weight is exp(prior - proposal))."""
 
     def __getattr__(self, name: str) -> np.ndarray:
         arrays = self.__dict__.get("arrays", {})
@@ -90,7 +94,8 @@ def x_manip_from_samples(samples: dict[str, np.ndarray]) -> np.ndarray:
     return np.concatenate(parts, axis=1).reshape(-1).astype(np.float32)
 
 
-def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo:
+def from_episode(task: str, seed: int, text: str, result: Any, env: Any, proposal_logp: float | None = None,
+                 prior_logp: float | None = None) -> Demo:
     """Build a :class:`Demo` from an ``EpisodeResult`` and the env it ran in (for the scene)."""
     env = env.unwrapped if hasattr(env, "unwrapped") else env
     gv_center, gv_half, gv_rot = result.gv_at_grasp
@@ -110,14 +115,16 @@ def from_episode(task: str, seed: int, text: str, result: Any, env: Any) -> Demo
     arrays["scene_qpos"] = np.asarray(result.scene_qpos, dtype=np.float64)
     return Demo(task=task, seed=int(seed), text=text, success=bool(result.success),
                 outcome=dict(result.outcome), scene_params={k: float(v) for k, v in env.scene_params.items()},
-                arrays=arrays)
+                arrays=arrays, proposal_logp=proposal_logp, prior_logp=prior_logp)
 
 
 def save_demo(demo: Demo, path: Path) -> Path:
     """Write ``demo`` to ``path`` (.npz) atomically (``prl.atomic.atomic_file``: temporary file + rename)."""
     path = Path(path)
     header = {"task": demo.task, "seed": demo.seed, "text": demo.text, "success": demo.success,
-              "outcome": demo.outcome, "scene_params": demo.scene_params}
+              "outcome": demo.outcome, "scene_params": demo.scene_params,
+              **{k: v for k, v in (("proposal_logp", demo.proposal_logp), ("prior_logp", demo.prior_logp))
+                 if v is not None}}
     with atomic_file(path, "wb") as fh:
         np.savez_compressed(fh, header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8), **demo.arrays)
     return path
@@ -138,7 +145,8 @@ def load_demo(path: Path) -> Demo:
     if missing:
         raise ValueError(f"demo file {str(path)!r} lacks arrays {missing}")
     return Demo(task=header["task"], seed=int(header["seed"]), text=header["text"], success=bool(header["success"]),
-                outcome=header["outcome"], scene_params=header["scene_params"], arrays=arrays)
+                outcome=header["outcome"], scene_params=header["scene_params"], arrays=arrays,
+                proposal_logp=header.get("proposal_logp"), prior_logp=header.get("prior_logp"))
 
 
 def require_arrays(demo: Demo, names: tuple[str, ...], why: str, source: str | Path = "") -> None:

@@ -236,7 +236,8 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Map
                 ds.add_frame({**{name: a[i] for name, a in frames.items()}, "task": text})
             ds.save_episode()
             scenes.append({"episode_index": len(scenes), "task": demo.task, "seed": demo.seed,
-                           "scene_params": demo.scene_params, "outcome": demo.outcome, "source": str(path)})
+                           "scene_params": demo.scene_params, "outcome": demo.outcome, "source": str(path),
+                           "proposal_logp": demo.proposal_logp, "prior_logp": demo.prior_logp})
             k = t // 2
             checks.append(EpisodeCheck(
                 length=t, task=text, plan=tuple(int(v) for v in frames["plan"][0]),

@@ -262,7 +262,9 @@ def read_scenes(root: Path | str) -> list[dict[str, Any]]:
     """Per-episode scene records of an exported dataset (``SCENES_FILE``), in episode order.
 
     Each: ``episode_index``, ``task``, ``seed`` (scene seed), ``scene_params`` (the randomised
-    values, from which ``prl.shapes`` rebuilds the tool and object meshes), ``outcome``, ``source``.
+    values, from which ``prl.shapes`` rebuilds the tool and object meshes), ``outcome``, ``source``,
+    ``proposal_logp`` and ``prior_logp`` (the plan's log-probabilities under the synthesis proposal that drew
+    it and under the task's prior, ``prl.proposal``; None in a dataset synthesised before they were recorded).
     """
     path = Path(root) / SCENES_FILE
     if not path.is_file():

@@ -19,7 +19,7 @@ object_points      256     PointNet feature of the object's surface points
 from __future__ import annotations
 
 import zlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ import numpy as np
 
 from prl.demo import X_MANIP_DIM
 from prl.pointnet import PN_DIM
+from prl.proposal import importance_weights
 from prl.rn import FeatureLayout
 from prl.text_embed import TE_DIM, embed_texts
 
@@ -58,6 +59,9 @@ class Episodes:
     """(N, 6) int64 recovered physical-law labels (-1 where none)."""
     outcomes: tuple[dict[str, Any], ...] = ()
     """The task's evaluation of each episode's final simulated state (from the scene record)."""
+    weights: np.ndarray | None = None
+    """(N,) importance weights prior / proposal of each episode's plan, mean 1 within each task
+    (``demo_weights``; None: all 1)."""
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -104,7 +108,22 @@ def _episodes_of(ds: Any, root: Path, scenes: list[dict[str, Any]]) -> Episodes:
         scene_params=tuple(dict(s["scene_params"]) for s in scenes),
         x_manip=cols["x_manip"].astype(np.float32), plan=cols["plan"].astype(np.int64),
         label=cols["label"].astype(np.int64), outcomes=tuple(dict(s.get("outcome") or {}) for s in scenes),
+        weights=demo_weights(scenes),
     )
+
+
+def demo_weights(scenes: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """Per episode, the importance weight prior / proposal of its plan (``prl.proposal``), self-normalised to
+    mean 1 within each task (each task has its own proposal); 1 for episodes that recorded no log-probabilities
+    (a dataset synthesised before proposals existed: its plans came from the prior)."""
+    w = np.ones(len(scenes))
+    tasks = np.array([str(s["task"]) for s in scenes])
+    for task in sorted(set(tasks.tolist())):
+        idx = np.nonzero(tasks == task)[0]
+        rows = [scenes[i] for i in idx]
+        if all(r.get("proposal_logp") is not None and r.get("prior_logp") is not None for r in rows):
+            w[idx] = importance_weights([r["prior_logp"] for r in rows], [r["proposal_logp"] for r in rows])
+    return w
 
 
 def point_seed(task: str, seed: int, part: str) -> int:

@@ -100,12 +100,21 @@ class Demonstrations:
     """(N, 6) int64 commanded plans (one column per dimension of the action space)."""
     reward: np.ndarray
     """(N,) float32 measured rewards (the task's measure in the episode's outcome)."""
+    weight: np.ndarray | None = None
+    """(N,) importance weights prior / proposal of the plans (``prl.proposal``): pre-training weights each
+    transition's losses by them, so the policy imitates the prior's successful plans, not the proposal's; None: 1."""
 
     def __post_init__(self) -> None:
         n = len(self.x)
         if self.x.ndim != 2 or self.plan.ndim != 2 or len(self.plan) != n or self.reward.shape != (n,):
             raise ValueError(f"demonstrations must be x (N, D), plan (N, A), reward (N,); got {self.x.shape}, "
                              f"{self.plan.shape}, {self.reward.shape}")
+        if self.weight is None:
+            object.__setattr__(self, "weight", np.ones(n, np.float32))
+        w = np.asarray(self.weight, np.float32)
+        if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ValueError(f"demonstration weights must be (N,) = ({n},) finite values >= 0, got shape {w.shape}")
+        object.__setattr__(self, "weight", w)
 
     def take(self, k: int, seed: int) -> Demonstrations:
         """The first ``k`` transitions of a seeded shuffle; ``ValueError`` naming ``k`` when there are fewer."""
@@ -115,14 +124,15 @@ class Demonstrations:
             raise ValueError(f"demo_steps={k} exceeds the {len(self.x)} demonstration transitions available "
                              f"(one per exported episode); synthesise more demos or ask for fewer steps")
         idx = np.random.default_rng(seed).permutation(len(self.x))[:k]
-        return Demonstrations(self.x[idx], self.plan[idx], self.reward[idx])
+        return Demonstrations(self.x[idx], self.plan[idx], self.reward[idx], self.weight[idx])
 
 
 def task_demonstrations(task: str, measure_key: str, x: np.ndarray, plans: np.ndarray, tasks: Sequence[str],
-                        outcomes: Sequence[dict[str, Any]]) -> Demonstrations:
+                        outcomes: Sequence[dict[str, Any]], weights: np.ndarray | None = None) -> Demonstrations:
     """The demonstration transitions of ``task`` among a dataset's episodes (x from ``prl.features``, plans,
-    per-episode task names and outcomes); the reward is the outcome's ``measure_key``. Clear errors when
-    the dataset has no episode of ``task`` or an outcome lacks the measure."""
+    per-episode task names and outcomes, and the episodes' importance ``weights``, ``prl.features.demo_weights``);
+    the reward is the outcome's ``measure_key``. Clear errors when the dataset has no episode of ``task`` or an
+    outcome lacks the measure."""
     idx = [i for i, t in enumerate(tasks) if t == task]
     if not idx:
         raise ValueError(f"the dataset has no demonstration of task {task!r} (it has {sorted(set(tasks))})")
@@ -131,7 +141,8 @@ def task_demonstrations(task: str, measure_key: str, x: np.ndarray, plans: np.nd
         raise ValueError(f"episode {missing[0]} of task {task!r} records no {measure_key!r} in its outcome; "
                          f"the LN's reward needs it (re-export the dataset)")
     reward = np.array([float(outcomes[i][measure_key]) for i in idx], np.float32)
-    return Demonstrations(np.asarray(x, np.float32)[idx], np.asarray(plans, np.int64)[idx], reward)
+    w = None if weights is None else np.asarray(weights, np.float32)[idx]
+    return Demonstrations(np.asarray(x, np.float32)[idx], np.asarray(plans, np.int64)[idx], reward, w)
 
 
 def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epochs: int = 10,
@@ -139,7 +150,8 @@ def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epoc
              on_batch: Callable[[int, dict[str, float]], None] | None = None) -> list[dict[str, float]]:
     """Pre-train ``model`` (an A2C of ``make_ln``) on ``demos`` (see the module docstring) in minibatches of
     ``batch_size`` (None: one A2C update's samples, ``n_steps x n_envs``); one row of losses per minibatch
-    (``actor_loss``, ``critic_loss``, ``expert_prob``: the mean probability of the demonstrated plan)."""
+    (``actor_loss``, ``critic_loss``, ``expert_prob``: the mean probability of the demonstrated plan). Both losses
+    are means weighted by the transitions' ``weight`` (all 1 for demos drawn from the prior)."""
     import torch.nn.functional as F  # heavy: torch
 
     if mode not in PRETRAIN_MODES:
@@ -159,14 +171,16 @@ def pretrain(model: Any, demos: Demonstrations, mode: str = "actor_critic", epoc
     obs = torch.as_tensor(demos.x, dtype=torch.float32)
     act = torch.as_tensor(demos.plan, dtype=torch.int64)
     rew = torch.as_tensor(demos.reward, dtype=torch.float32)
+    weight = torch.as_tensor(demos.weight, dtype=torch.float32)
     rows: list[dict[str, float]] = []
     for _ in range(int(epochs)):
         order = rng.permutation(len(obs))
         for start in range(0, len(order), batch_size):
             b = torch.as_tensor(order[start:start + batch_size])
             values, log_prob, _ = policy.evaluate_actions(obs[b], act[b])
-            actor = -log_prob.mean()
-            critic = F.mse_loss(values.flatten(), rew[b])
+            w = weight[b] / weight[b].sum().clamp(min=1e-12)
+            actor = -(w * log_prob).sum()
+            critic = (w * F.mse_loss(values.flatten(), rew[b], reduction="none")).sum()
             loss = actor + model.vf_coef * critic if mode == "actor_critic" else actor
             policy.optimizer.zero_grad()
             loss.backward()

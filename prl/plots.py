@@ -45,13 +45,15 @@ def plot_trial_rates(task: str, rates: Mapping[str, float], counts: Mapping[str,
 
 
 def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim_names: Sequence[str],
-                          choice_names: Sequence[Sequence[str]], out: Path, tau: float = 2.0) -> Any:
+                          choice_names: Sequence[Sequence[str]], out: Path, tau: float = 2.0,
+                          weights_by_task: Mapping[str, Sequence[float]] | None = None) -> Any:
     """The paper's Fig 7 redrawn: one row per task, one bar chart per RS dimension.
 
     ``probs_by_task[task][i]`` is the (N, m_i) RN probabilities of dimension i over the task's samples;
     each bar is the mean predicted probability of a choice. Key dimensions (``prl.rn_decode.key_dimensions``:
     the top mean probability exceeds ``tau / m_i``, drawn as a dashed line) are drawn in colour with
-    their top choice highlighted; the others in grey."""
+    their top choice highlighted; the others in grey. ``weights_by_task[task]``: the samples' weights in the
+    means (the demos' importance weights, ``prl.proposal``); missing: equal."""
     from matplotlib.figure import Figure  # heavy: matplotlib
 
     from prl.rn_decode import key_dimensions
@@ -73,7 +75,7 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
     fig = Figure(figsize=(2.3 * n, 1.9 * len(tasks) + 0.6))
     axes = fig.subplots(len(tasks), n, squeeze=False)
     for r, task in enumerate(tasks):
-        summaries = key_dimensions(probs_by_task[task], tau=tau)
+        summaries = key_dimensions(probs_by_task[task], tau=tau, weights=(weights_by_task or {}).get(task))
         for c, s in enumerate(summaries):
             ax = axes[r][c]
             m = len(s.mean_probs)
@@ -114,6 +116,19 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
         raise ValueError("curves is empty; give at least one variant")
     fig = Figure(figsize=(6, 3.6))
     ax = fig.subplots()
+    draw_learning_curves(ax, curves, x_key, y_key, x_label=x_label, log_x=log_x)
+    ax.set_title(title)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    return fig
+
+
+def draw_learning_curves(ax: Any, curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str,
+                         y_key: str, x_label: str | None = None, log_x: bool = False,
+                         colors: Mapping[str, str] | None = None) -> None:
+    """``plot_learning_curves``' curves drawn on the matplotlib axes ``ax`` (``colors``: a colour per variant, so
+    that one variant keeps its colour across panels)."""
     for variant, runs in curves.items():
         runs = [r for r in runs if r]
         if not runs:
@@ -122,8 +137,10 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
         end = min(r[-1][x_key] for r in runs)
         grid = np.linspace(start, max(end, start), 100)
         ys = np.stack([np.interp(grid, [row[x_key] for row in r], [row[y_key] for row in r]) for r in runs])
+        few = len(runs[0]) < 3  # a curve of one or two updates: its ends marked, not every grid point
         line, = ax.plot(grid, ys.mean(axis=0), label=f"{variant} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
-                        marker="o" if len(runs[0]) < 3 else None)
+                        marker="o" if few else None, markevery=[0, len(grid) - 1] if few else None,
+                        color=(colors or {}).get(variant))
         if len(runs) > 1:
             ax.fill_between(grid, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
     if log_x:
@@ -131,9 +148,35 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
     ax.set_xlabel(x_label or x_key)
     ax.set_ylabel(y_key.replace("_", " "))
     ax.set_ylim(-0.03, 1.03)
-    ax.set_title(title)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+
+
+def plot_fig8_panels(panels: Sequence[tuple[str, Mapping[str, Sequence[Sequence[Mapping[str, float]]]]]],
+                     x_key: str, y_key: str, out: Path, title: str = "", x_label: str | None = None,
+                     log_x: bool = True) -> Any:
+    """Fig 8 of one task as stacked panels (``panels``: a title and its ``plot_learning_curves`` curves each; an
+    empty panel says so), each variant in one colour throughout. Saved as a PNG without the matplotlib version
+    in its metadata, so that the same curves give the same bytes."""
+    from matplotlib.figure import Figure  # heavy: matplotlib
+
+    if not panels:
+        raise ValueError("panels is empty; give at least one")
+    names = sorted({v for _, curves in panels for v in curves})
+    palette = [f"C{i % 10}" for i in range(len(names))]
+    colors = dict(zip(names, palette, strict=True))
+    fig = Figure(figsize=(6.4, 3.3 * len(panels)))
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    for ax, (panel_title, curves) in zip(axes, panels, strict=True):
+        if any(any(r) for r in curves.values()):
+            draw_learning_curves(ax, curves, x_key, y_key, x_label=x_label, log_x=log_x, colors=colors)
+        else:
+            ax.text(0.5, 0.5, "no point yet", ha="center", va="center", transform=ax.transAxes)
+            ax.set_xlabel(x_label or x_key)
+        ax.set_title(panel_title, fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=110, metadata={"Software": None})
     return fig

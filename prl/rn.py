@@ -349,14 +349,19 @@ def eval_logits(model: RepresentationNetwork, x: Tensor) -> Tensor:
 # ------------------------------------------------------------------ Eq 3
 
 
-def rn_loss(logits_per_dim: Sequence[Tensor], targets: Tensor, cfg: RNConfig) -> dict[str, Tensor]:
+def rn_loss(logits_per_dim: Sequence[Tensor], targets: Tensor, cfg: RNConfig,
+            weights: Tensor | None = None) -> dict[str, Tensor]:
     """Eq 3 term by term for one batch (see the module docstring for the reductions).
 
     ``logits_per_dim``: n tensors (B, m_i); ``targets``: long (B, n). Returns scalar tensors
     ``ce`` (cross-entropy summed over the batch and the dims), ``confidence`` (lambda x sum over dims
     of the batch-mean hinge ``max(0, tau_c/m_i - p_max)``), ``count`` (gamma x 1{C < T_min}, no
     gradient), ``total`` (their sum), and the diagnostics ``n_confident`` (C, the number of
-    (sample, dim) pairs with ``p_max > tau_s/m_i``) and ``count_on`` (the indicator, 0 or 1)."""
+    (sample, dim) pairs with ``p_max > tau_s/m_i``) and ``count_on`` (the indicator, 0 or 1).
+
+    ``weights`` (B,): each sample's cross-entropy is multiplied by its weight (the importance weight prior /
+    proposal of its plan, ``prl.proposal``: the RN then learns the successful plans of the prior, whatever
+    proposal synthesis drew them from); None: all 1."""
     n = len(logits_per_dim)
     if targets.ndim != 2 or targets.shape[1] != n:
         raise ValueError(f"targets must have shape (batch, {n}), got {tuple(targets.shape)}")
@@ -375,7 +380,8 @@ def rn_loss(logits_per_dim: Sequence[Tensor], targets: Tensor, cfg: RNConfig) ->
         if bool(((t < 0) | (t >= m)).any()):
             bad = int(t[(t < 0) | (t >= m)][0])
             raise ValueError(f"target of dimension a{i} is {bad}, outside 0..{m - 1}")
-        ce = ce + F.cross_entropy(logits, t, reduction="sum")
+        ce = ce + (F.cross_entropy(logits, t, reduction="sum") if weights is None
+                   else (F.cross_entropy(logits, t, reduction="none") * weights).sum())
         p_max = torch.softmax(logits, dim=-1).amax(dim=-1)
         hinge = hinge + torch.clamp(cfg.tau_c / m - p_max, min=0.0).mean()
         n_confident = n_confident + (p_max.detach() > cfg.tau_s / m).sum()

@@ -143,13 +143,15 @@ class DimensionSummary:
     """``top_prob > threshold``: the samples agree, confidently, on ``top_choice``."""
 
 
-def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0) -> list[DimensionSummary]:
+def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0,
+                   weights: Sequence[float] | None = None) -> list[DimensionSummary]:
     """Summarise per-dimension probabilities ``probs[i]`` (N, m_i) of one task (see the module docstring).
 
     A dimension is key when the largest entry of its mean probability vector exceeds ``tau / m_i``
     (default ``tau`` = the paper's ``tau_s`` = 2: twice the uniform probability). The mean over
     samples is used, not each sample's maximum, so that confident but disagreeing predictions (no
-    shared rule) do not count."""
+    shared rule) do not count. ``weights`` (N,): the samples' weights in the means (the demos' importance
+    weights, ``prl.proposal``); None: equal."""
     if not is_number(tau) or not tau > 0:
         raise ValueError(f"tau must be a number > 0, got {tau!r}")
     out = []
@@ -157,10 +159,13 @@ def key_dimensions(probs: Sequence[np.ndarray], tau: float = 2.0) -> list[Dimens
         arr = np.asarray(p, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] < 2:
             raise ValueError(f"probs[{i}] must be (samples > 0, choices >= 2), got shape {arr.shape}")
-        mean = arr.mean(axis=0)
+        w = np.ones(len(arr)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(arr),):
+            raise ValueError(f"weights must have one value per sample ({len(arr)}), got shape {w.shape}")
+        mean = np.average(arr, axis=0, weights=w)
         top = int(mean.argmax())
         threshold = tau / arr.shape[1]
-        out.append(DimensionSummary(index=i, mean_probs=mean, mean_max_prob=float(arr.max(axis=1).mean()),
+        out.append(DimensionSummary(index=i, mean_probs=mean, mean_max_prob=float(np.average(arr.max(axis=1), weights=w)),
                                     top_choice=top, top_prob=float(mean[top]), threshold=threshold,
                                     key=bool(mean[top] > threshold)))
     return out

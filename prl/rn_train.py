@@ -60,6 +60,7 @@ def train_rn(
     y_val: Any = None,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     progress: bool = True,
+    w_train: Any = None,
 ) -> tuple[RepresentationNetwork, list[dict[str, float]]]:
     """Train a :class:`RepresentationNetwork` with the Eq 3 loss; return ``(model in eval mode, history)``.
 
@@ -73,7 +74,8 @@ def train_rn(
     (``rn/val_acc_a{i}``, ``rn/val_acc_mean``, ``rn/val_loss_ce``), and ``rn/epoch_s``. ``on_epoch(e,
     record)`` is called after each epoch (e.g. to log to MLflow). The result depends only on the data
     and ``cfg`` (the seed fixes init, dropout and batch order; the global torch RNG is left untouched)
-    for a given torch thread count."""
+    for a given torch thread count. ``w_train`` (N,): per-sample weights of the cross-entropy (``prl.rn.rn_loss``;
+    the demos' importance weights), None: all 1."""
     cfg = RNConfig() if cfg is None else cfg
     x = as_features(x_train, "x_train")
     y = as_labels(y_train, cfg.dims, "y_train")
@@ -91,6 +93,12 @@ def train_rn(
             raise ValueError(f"x_val has {len(xv)} samples but y_val has {len(yv)}")
         xv_t, yv_t = torch.from_numpy(xv), torch.from_numpy(yv)
     x_t, y_t = torch.from_numpy(x), torch.from_numpy(y)
+    w_t = None
+    if w_train is not None:
+        w = np.asarray(w_train, dtype=np.float32)
+        if w.shape != (len(x),) or not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ValueError(f"w_train must be {len(x)} finite weights >= 0, got shape {w.shape}")
+        w_t = torch.from_numpy(w)
     mean, std = feature_stats(x)
     rng = np.random.default_rng(cfg.seed)
     history: list[dict[str, float]] = []
@@ -112,7 +120,7 @@ def train_rn(
             for idx in batches:
                 index = torch.from_numpy(idx)
                 parts = split_logits(model(x_t[index]), cfg.dims)
-                terms = rn_loss(parts, y_t[index], cfg)
+                terms = rn_loss(parts, y_t[index], cfg, None if w_t is None else w_t[index])
                 opt.zero_grad(set_to_none=True)
                 terms["total"].backward()
                 opt.step()

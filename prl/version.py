@@ -1,4 +1,4 @@
-"""Code version for cache keys and run tags."""
+"""Code versions for cache keys, run tags and the LN's committed results (``outcome_version``)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,54 @@ def code_version() -> str:
                 h.update(str(path.relative_to(REPO_ROOT)).encode())
                 h.update(path.read_bytes())
     return h.hexdigest()[:16]
+
+
+OUTCOME_SHARED_FILES: tuple[str, ...] = (
+    # the simulator side every task's LN point runs: the package (it registers the hand agent), the hand, the
+    # task base and registry, the plan executor and one plan episode's stepping, the LN's environments and the
+    # evaluation's trials (``run_policy``, ``run_joint_policy``)
+    "envs/__init__.py", "envs/agents/__init__.py", "envs/agents/prl_hand.py", "envs/hand_model.py", "envs/ik.py",
+    "envs/sensors.py", "envs/tasks/__init__.py", "envs/tasks/base.py", "envs/executor.py", "envs/execution.py",
+    "envs/episode.py", "envs/scene_record.py", "envs/scene_stream.py", "envs/plan_env.py", "envs/joint_env.py",
+    "envs/vec_env.py", "envs/trials.py", "envs/reach.py",
+    # the LN and what it imports from the library (x: x_manip, text embedding, PointNet, its layout; the PLB;
+    # the executor's stages and label maths; the dataset readers of the demonstrations' x)
+    "prl/__init__.py", "prl/ln.py", "prl/features.py", "prl/demo.py", "prl/pointnet.py", "prl/rn.py",
+    "prl/text_embed.py", "prl/shapes.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py", "prl/labels.py",
+    "prl/stages.py", "prl/atomic.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py",
+    "prl/proposal.py", "prl/cem.py", "prl/stats.py",  # the demonstrations' importance weights
+)
+"""Files that decide an LN point's outcome on every task, beside the task's own module and ``assets/``. Left out
+on purpose: ``prl/config.py`` (the LN's settings enter each summary's ``settings`` as values, so editing the
+pipeline's profiles does not invalidate results), ``flows/`` (orchestration and tracking; a change there to what
+a point computes bumps ``flows.ln_results.POINT_PROCEDURE``), other tasks' modules, the synthesis and the red team
+(they make the dataset, which the summaries' ``dataset_digest`` covers), docs and tests.
+``tests/prl/test_version.py`` checks this list against the modules these files import."""
+
+OUTCOME_ASSET_SUFFIXES: frozenset[str] = frozenset({".py", ".yaml", ".urdf", ".srdf"})
+"""Files under ``assets/`` that enter ``outcome_version`` (the PLB catalogue, the hand model and its inputs)."""
+
+
+def outcome_files(task: str) -> tuple[str, ...]:
+    """The files (relative to the repository root, sorted) whose contents decide an LN point's outcome on
+    ``task``: ``envs/tasks/<task>.py``, ``OUTCOME_SHARED_FILES`` and ``assets/`` (``OUTCOME_ASSET_SUFFIXES``).
+    An explicit list: a module added later (another task, a variant of one) changes no task's files until one of
+    these imports it. FileNotFoundError naming a task without a module, or a listed file that is missing."""
+    if not isinstance(task, str) or not task.isidentifier():
+        raise ValueError(f"task must be a task module's name, got {task!r}")
+    own = f"envs/tasks/{task}.py"
+    if not (REPO_ROOT / own).is_file():
+        raise FileNotFoundError(f"task {task!r} has no module {own!r} under {REPO_ROOT}")
+    assets = [p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "assets").rglob("*")
+              if p.is_file() and p.suffix in OUTCOME_ASSET_SUFFIXES]
+    return tuple(sorted({own, *OUTCOME_SHARED_FILES, *assets}))
+
+
+def outcome_version(task: str) -> str:
+    """A digest (16 hex digits) of the names and bytes of ``outcome_files(task)``: what a committed LN summary of
+    ``task`` records as its ``code_version``. A change to the task's physics or success rule, the executor or the
+    LN changes it; a README, docs, tests, flows or another task's module do not."""
+    return source_version(*outcome_files(task))
 
 
 def source_version(*relative_paths: str) -> str:

@@ -27,6 +27,7 @@ from mani_skill.utils.structs import Actor
 from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
 from sapien import physx
 
+from envs.reach import REACH_MARGIN, HandReach, moving_bodies
 from prl.constants import SIM_FREQ
 from prl.geometry import rot_z
 from prl.stages import StageSpec
@@ -322,6 +323,34 @@ class PRLTaskEnv(BaseEnv):
         names), for every task alike; a task whose measure counts from a stage keeps its reference here (the
         unscrew counts the cap's turn from the motion on). Nothing by default. Controllers without stages (joint
         control, ``env.step``) never call it: such a measure then counts from the reset."""
+
+    def failure_decided(self, stage: str, reach: HandReach) -> str:
+        """Why this episode can no longer end in success, or "" when it still can (the default: never decided).
+
+        Asked by the plan executor only with ``ExecutorConfig.end_decided``, at the boundary after each stage but
+        the last (``stage`` has just ended, the next one has been planned), with ``reach`` the hand's remaining
+        path. A non-empty answer ends the episode there as a failure. It must therefore hold for every way the
+        rest of the episode can go: a task overrides this with the states its ``evaluate()`` can never turn into
+        a success, and says why in its docstring. It must not change the simulation."""
+        return ""
+
+    def at_rest_out_of_reach(self, reach: HandReach) -> str:
+        """Why nothing but the hand can move any more, or "": every body of the scene that can move, the hand
+        aside (``envs.reach.moving_bodies``: the tool, debris, the mechanisms' moving links), is asleep in PhysX
+        and the hand's remaining path stays more than ``REACH_MARGIN`` from each of them (``HandReach``).
+
+        PhysX does not integrate a sleeping body: it stays where it is until an awake body touches it, an awake
+        body of its island or a joint moves it, or the program moves or pushes it. Here no program does (the
+        executor only writes the hand's drive targets; the mechanisms' drives are set once at the reset); the
+        only other awake body is the hand (the sleeping bodies include every other one), and it stays clear of
+        them. So from now on none of these bodies moves, and the hand touches none of them."""
+        bodies = moving_bodies(self)
+        if not all(b.is_sleeping if hasattr(b, "is_sleeping") else b.sleeping for b in bodies):
+            return ""
+        clearance = reach.clearance(bodies)
+        if not clearance > REACH_MARGIN:
+            return ""
+        return f"every body but the hand asleep, {clearance * 100:.0f} cm or more from the hand's remaining path"
 
     def watch_state(self) -> dict[str, float]:
         """What the task's per-frame watch (``_after_simulation_step``) has kept in this episode, as named numbers

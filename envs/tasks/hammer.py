@@ -12,6 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
+from envs.reach import HandReach
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.shapes import (
     HANDLE_HALF_LENGTH,
@@ -341,6 +342,19 @@ class PRLHammerEnv(PRLTaskEnv):
             elif self._nail_driver == "loose_hammer":
                 self._loose_drive += q - self._nail_q
         self._nail_q = q
+
+    def failure_decided(self, stage: str, reach: HandReach) -> str:
+        """Decided once the hammer, the nail and every other movable body are asleep out of the hand's remaining
+        reach (``at_rest_out_of_reach``) while the held hammer's descent d is still at most ``SUCCESS_EPS_CM``.
+
+        d grows only in a frame where the nail moves while the hammer presses on its head **and a hand link presses
+        on the hammer**. From here on the hand touches neither the hammer nor the nail and neither moves (the nail
+        is held by its friction drive), so d keeps its value: the episode ends a failure whatever the hand does.
+        A hammer that keeps a hand link on it never qualifies (the hand's path starts where the hand is now)."""
+        if self._hammer_drive * 100.0 > SUCCESS_EPS_CM:
+            return ""
+        frozen = self.at_rest_out_of_reach(reach)
+        return f"{frozen}; the held hammer's descent stays {self._hammer_drive * 100.0:.3f} cm" if frozen else ""
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor
 from sapien import physx
 
+from envs.reach import HandReach
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, presses, yaw_matrix
 from prl.geometry import rot_z
 from prl.shapes import (
@@ -306,6 +307,25 @@ class PRLSweepEnv(PRLTaskEnv):
             if name in values:
                 bits = int(values[name])
                 mask[:] = [(bits >> i) & 1 for i in range(n)]
+
+    def failure_decided(self, stage: str, reach: HandReach) -> str:
+        """Decided when at most ``SUCCESS_COUNT`` cubes can still count, or when nothing but the hand can move any
+        more (``at_rest_out_of_reach``) and fewer than ``SUCCESS_COUNT`` + 1 cubes count now.
+
+        A cube counts only if it ends in the zone, did not start there, and neither a hand link nor a loose broom
+        ever pressed on it: the last two are marks the cube watch sets and never clears, so a cube marked (or one
+        that started in the zone) never counts, and with at most 3 cubes left unmarked the count stays <= 3.
+        Asleep and out of the hand's reach, the broom and every cube stay where they are and no mark changes (the
+        watch marks only cubes that move), so the count and the broom's state at the end are those of now."""
+        start = self.cube_start_positions()
+        left = ~self._hand_touched & ~self._loose_pushed & ~self.cubes_in_zone(start)
+        if int(left.sum()) <= SUCCESS_COUNT:
+            return f"only {int(left.sum())} cubes can still count (the others were pressed by the hand or a loose broom)"
+        frozen = self.at_rest_out_of_reach(reach)
+        if not frozen:
+            return ""
+        now = self.evaluate()
+        return "" if bool(now["success"][0]) else f"{frozen}; {int(now['cubes_in_zone'][0])} cubes count"
 
     # ------------------------------------------------------------------ executor API
     def object_frame_world(self) -> tuple[np.ndarray, np.ndarray]:

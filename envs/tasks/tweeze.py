@@ -12,6 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Actor, Articulation, Link
 from sapien import physx
 
+from envs.reach import HandReach
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix, pose_to_numpy, yaw_matrix
 from prl.geometry import rot_y, rot_z
 from prl.shapes import (
@@ -366,6 +367,17 @@ class PRLTweezeEnv(PRLTaskEnv):
         """The hand links that pressed on the cube in a frame of this episode (the first frame with any), or that
         press on it now."""
         return self._hand_touched_cube or self.hand_touches_cube()
+
+    def failure_decided(self, stage: str, reach: HandReach) -> str:
+        """Decided as soon as a hand link has pressed on the cube: the cube watch keeps that first touch for the
+        rest of the episode and ``evaluate()`` never counts a touched cube, whatever happens next.
+
+        (``at_rest_out_of_reach`` never holds here: the tweezers never sleep, their sleep threshold is 0.)"""
+        if self._hand_touched_cube:
+            return f"hand link {self._hand_touched_cube[0]} pressed on the cube"
+        frozen = self.at_rest_out_of_reach(reach)
+        lift = float(self.cube_lift_cm()[0]) if frozen else 0.0
+        return f"{frozen}; the cube's lift stays {lift:.1f} cm" if frozen and not lift > SUCCESS_LIFT_CM else ""
 
     def tool_is_broken(self) -> torch.Tensor:
         broken = super().tool_is_broken()

@@ -12,6 +12,7 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Articulation, Link
 from sapien import physx
 
+from envs.reach import HandReach
 from envs.tasks.base import PRLTaskEnv, pose_from_matrix
 from prl.shapes import (  # the cap on a narrow neck, its top 1 mm proud
     CAP_CENTER_HEIGHT,
@@ -208,6 +209,13 @@ class PRLUnscrewEnv(PRLTaskEnv):
         if unknown:
             raise ValueError(f"unknown unscrew watch state {sorted(unknown)}")
         self._motion_start_deg = float(values.get("motion_start_deg", self._motion_start_deg))
+
+    def failure_decided(self, stage: str, reach: HandReach) -> str:
+        """Decided once the cap and the bottle are asleep out of the hand's remaining reach
+        (``at_rest_out_of_reach``): a success needs at least ``GRIP_LINKS`` hand links pressing on the cap's side
+        at the end, and from here on the hand touches the cap no more."""
+        frozen = self.at_rest_out_of_reach(reach)
+        return f"{frozen}; the cap cannot be gripped at the end" if frozen else ""
 
     def tool_is_broken(self) -> torch.Tensor:
         """(1,) bool: the cap's simulated pose is NaN/inf (it cannot fall: it is jointed to the holder)."""

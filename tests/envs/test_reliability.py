@@ -145,7 +145,9 @@ elif mode == "append":
         with open(Path(shard_dir) / "attempts.jsonl", "a") as fh:
             die_halfway(json.dumps(row) + "\\n", fh)
     synthesis._append = torn_append
-run_shard(ShardSpec("hammer", 0, 8, 23, Path(sys.argv[1])))
+from prl.proposal import ProposalConfig
+synthesis.synthesize_rounds([ShardSpec("hammer", 0, 12, 23, Path(sys.argv[1]))], ProposalConfig(round_attempts=3),
+                            lambda todo: [run_shard(s) for s in todo])
 """
 
 
@@ -161,7 +163,7 @@ def test_ten_kills_end_byte_identical(tmp_path: Path) -> None:
     subprocess.run([sys.executable, "-c", _CHILD, str(clean), "run"], cwd=REPO, check=True,
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=600)
     want = _files(clean)
-    assert sum(name.endswith(".npz") for name in want) == 8
+    assert sum(name.endswith(".npz") for name in want) == 12
     shard = killed / "hammer" / "shard000"
     rng = random.Random(2026)
     modes = ["run"] * 8

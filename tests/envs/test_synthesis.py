@@ -42,8 +42,10 @@ _CHILD = """
 import sys
 from pathlib import Path
 import envs
-from envs.synthesis import ShardSpec, run_shard
-run_shard(ShardSpec("hammer", 0, 3, 11, Path(sys.argv[1])))
+from envs.synthesis import ShardSpec, run_shard, synthesize_rounds
+from prl.proposal import ProposalConfig
+synthesize_rounds([ShardSpec("hammer", 0, 3, 11, Path(sys.argv[1]))], ProposalConfig(round_attempts=2),
+                  lambda todo: [run_shard(s) for s in todo])
 """
 
 
@@ -148,8 +150,9 @@ def test_local_dask_workers_report_to_this_process_api() -> None:
 
 @pytest.mark.sim
 def test_same_seed_gives_identical_bytes_in_two_processes(tmp_path: Path) -> None:
-    """Two fresh interpreters run the same shard side by side: every demo file and the attempt log agree
-    byte for byte (the physics, the plan sampling and the file format are all deterministic)."""
+    """Two fresh interpreters run the same shard side by side, in rounds of the adaptive proposal: every demo
+    file and the attempt log agree byte for byte (the physics, the plan sampling, the proposal's updates and the
+    file format are all deterministic)."""
     outs = [tmp_path / "a", tmp_path / "b"]
     procs = [subprocess.Popen([sys.executable, "-c", _CHILD, str(out)], cwd=REPO, env=dict(os.environ),
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE) for out in outs]
@@ -160,3 +163,73 @@ def test_same_seed_gives_identical_bytes_in_two_processes(tmp_path: Path) -> Non
     assert files[0] == files[1] and len(files[0]) == 4  # attempts.jsonl + 3 demos
     for rel in files[0]:
         assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel
+
+
+class _Killed(Exception):
+    """Stands for a kill between two rounds."""
+
+
+@pytest.mark.sim
+def test_rounds_do_not_depend_on_shard_order_and_resume_after_a_kill_between_rounds(tmp_path: Path) -> None:
+    """Two shards in rounds of 2 attempts with the adaptive proposal: running each round's shards in reverse
+    order (as Dask workers may) and stopping after the second round then resuming both give the files of a plain
+    run, byte for byte; the proposal moved after round 0 and every attempt logs its round and log-probabilities."""
+    import envs  # noqa: F401
+    from envs.synthesis import run_shard, synthesize_rounds
+    from prl.proposal import ProposalConfig
+
+    cfg = ProposalConfig(round_attempts=2)
+
+    def specs(out: Path) -> list[ShardSpec]:
+        return [ShardSpec("hammer", k, 4, 5, out) for k in range(2)]
+
+    seen: list[tuple[int, tuple]] = []
+
+    def forward(todo: list[ShardSpec]) -> list:
+        seen.append((todo[0].round, todo[0].proposal))
+        return [run_shard(s, keep_env=True) for s in todo]
+
+    def backward(todo: list[ShardSpec]) -> list:
+        return [run_shard(s, keep_env=True) for s in reversed(todo)][::-1]
+
+    rounds_run = []
+
+    def dies_after_round_1(todo: list[ShardSpec]) -> list:
+        if todo[0].round == 2:
+            raise _Killed
+        rounds_run.append(todo[0].round)
+        return forward(todo)
+
+    synthesize_rounds(specs(tmp_path / "clean"), cfg, forward)
+    want = {str(p.relative_to(tmp_path / "clean")): p.read_bytes() for p in (tmp_path / "clean").rglob("*") if p.is_file()}
+    assert len(seen) >= 2 and seen[1][1] != seen[0][1]  # the proposal of round 1 is not round 0's
+    synthesize_rounds(specs(tmp_path / "reversed"), cfg, backward)
+    with pytest.raises(_Killed):
+        synthesize_rounds(specs(tmp_path / "killed"), cfg, dies_after_round_1)
+    assert rounds_run == [0, 1]
+    synthesize_rounds(specs(tmp_path / "killed"), cfg, forward)
+    for name in ("reversed", "killed"):
+        got = {str(p.relative_to(tmp_path / name)): p.read_bytes() for p in (tmp_path / name).rglob("*") if p.is_file()}
+        assert sorted(got) == sorted(want)
+        assert all(got[k] == v for k, v in want.items()), name
+    rows = read_attempts(tmp_path / "clean" / "hammer" / "shard000")
+    assert [r["round"] for r in rows] == [r["attempt"] // 2 for r in rows]
+    assert all(r["prior_logp"] < 0 and r["proposal_logp"] < 0 for r in rows)
+    assert rows[0]["prior_logp"] == rows[0]["proposal_logp"]  # round 0 draws from the prior
+
+
+def test_the_progress_tally_reads_only_new_complete_lines(tmp_path: Path) -> None:
+    from flows.synthesize import _LogTally
+
+    specs = [ShardSpec("hammer", k, 1, 0, tmp_path) for k in range(2)]
+    tally = _LogTally(specs)
+    assert tally.update() == (0, 0)
+    specs[0].dir.mkdir(parents=True)
+    log = specs[0].dir / "attempts.jsonl"
+    log.write_text('{"attempt": 0, "success": false}\n{"attempt": 1, "success": true}\n{"attempt": 2, "su')
+    assert tally.update() == (2, 1)  # the torn line is not counted yet
+    with open(log, "a") as fh:
+        fh.write('ccess": true}\n')
+    assert tally.update() == (3, 2)
+    log.write_text('{"attempt": 0, "success": false}\n')  # rewritten shorter on resume
+    assert tally.update() == (1, 0)

@@ -1,0 +1,169 @@
+"""The committed reference plans of one task (``docs/results/ln/reference-<task>.json``): the task's expert plan, a
+plan sampled from its prior per scene and, when an RN was given, the RN's argmax plan, each executed on the LN
+points' evaluation scenes, so that the report shows every point's final plan next to them on the same scenes.
+Written by ``python -m flows.ln_reference``; its schema, its one byte form (``prl.ln_summary.summary_bytes``: sorted
+keys, indent 1, no local absolute path), its reading with errors that name the file, and its reuse rule.
+
+A reference summary is one JSON object:
+
+- ``task``: the task (the file is ``reference-<task>.json``);
+- ``settings``: what decides its outcome beside the code: ``eval_seed`` and ``eval_scenes`` (the scenes are
+  ``envs.trials.eval_scene_seeds(eval_seed, eval_scenes)``, the points'), ``n_frames``, ``prior_seed`` (the prior
+  plans' seed), ``procedure`` (``flows.ln_reference.REFERENCE_PROCEDURE``) and, with an RN, ``rn`` (its file name),
+  ``rn_sha256`` (its bytes: an RN's file name is not keyed), ``pointnet`` (the PointNet's keyed file name) and
+  ``n_points``;
+- ``code_version``: ``prl.version.outcome_version`` of the task, as the points';
+- ``plans``: per plan kind (``REFERENCE_KINDS``: ``expert``, ``prior`` and, with an RN, ``rn``) ``successes``,
+  ``n``, ``ci95`` (Wilson) and ``outcomes``, one per scene (``seed``, ``plan``, ``success``, ``measure``,
+  ``error``), every kind on the same scenes in the same order;
+- ``started`` and ``finished`` (ISO 8601, UTC).
+
+A reference is reused (``reference_reuse``) when its task, settings and code version all equal the ones the command
+would run now (``REFERENCE_RECORD_KEYS``); anything else is computed again and the file replaced.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from prl.atomic import write_atomic
+from prl.ln_summary import (
+    REFERENCE_PREFIX,
+    SummaryError,
+    _require,
+    _strings,
+    compact,
+    reuse_decision,
+    summary_bytes,
+)
+from prl.stats import wilson_interval
+
+REFERENCE_KINDS: tuple[str, ...] = ("expert", "prior", "rn")
+"""The reference plan kinds, in the report's order: the expert plan, a prior-sampled plan, the RN's argmax plan."""
+REQUIRED_KINDS: tuple[str, ...] = ("expert", "prior")
+"""The kinds every reference has (the RN's only when the command was given one)."""
+REFERENCE_LABELS: dict[str, str] = {"expert": "expert plan", "prior": "prior-sampled plan", "rn": "RN argmax plan"}
+"""How the report names each kind."""
+REFERENCE_RECORD_KEYS: tuple[str, ...] = ("task", "settings", "code_version")
+"""What decides a reference's outcome: it is reused only when all of these equal the command's."""
+
+REQUIRED: dict[str, type | tuple[type, ...]] = {"task": str, "settings": dict, "code_version": str, "plans": dict,
+                                               "started": str, "finished": str}
+"""The keys every reference summary has, with their JSON types."""
+SETTINGS_KEYS: dict[str, type | tuple[type, ...]] = {"eval_seed": int, "eval_scenes": int, "n_frames": int}
+"""The keys of a reference's ``settings`` that the report relies on (``rn`` too when it has the RN's plans)."""
+PLAN_KEYS: dict[str, type | tuple[type, ...]] = {"successes": int, "n": int, "ci95": list, "outcomes": list}
+"""The keys of each plan kind's result."""
+OUTCOME_KEYS: dict[str, type | tuple[type, ...]] = {"seed": int, "plan": list, "success": bool,
+                                                    "measure": (int, float, type(None))}
+"""The keys each scene's outcome has at least."""
+
+
+def reference_file_name(task: str) -> str:
+    """The reference file of ``task``: ``reference-<task>.json``."""
+    return f"{REFERENCE_PREFIX}{task}.json"
+
+
+def plan_result(outcomes: Iterable[Any]) -> dict[str, Any]:
+    """One plan kind's result from its trial outcomes (``envs.trials.TrialOutcome`` or anything with ``seed``,
+    ``plan``, ``success``, ``measure``, ``error``), in order: successes, n, the Wilson ``ci95`` and the rounded
+    per-scene outcomes. ValueError for no outcome."""
+    rows = [{"seed": int(o.seed), "plan": [int(v) for v in o.plan], "success": bool(o.success),
+             "measure": float(o.measure), "error": str(o.error)} for o in outcomes]
+    if not rows:
+        raise ValueError("a plan kind's result needs at least one outcome, got none")
+    k = sum(r["success"] for r in rows)
+    return {"successes": k, "n": len(rows), "ci95": compact(list(wilson_interval(k, len(rows)))),
+            "outcomes": compact(rows)}
+
+
+def check_reference(ref: Any, path: Path) -> None:
+    """SummaryError naming ``path`` and what is wrong: a missing or mistyped key (module docstring), a plan kind
+    that is unknown or missing, counts that are not the outcomes', kinds on other scenes than the expert's or
+    other than ``eval_scenes`` of them, RN plans without the RN's file name (or the name without the plans), or a
+    file name that is not ``reference-<task>.json``."""
+    path = Path(path)
+    _require(ref, REQUIRED, "", path)
+    _require(ref["settings"], SETTINGS_KEYS, "settings.", path)
+    plans = ref["plans"]
+    unknown = sorted(set(plans) - set(REFERENCE_KINDS))
+    missing = [k for k in REQUIRED_KINDS if k not in plans]
+    if unknown or missing:
+        raise SummaryError(f"{str(path)!r}: plans must be {', '.join(REQUIRED_KINDS)} and optionally rn; "
+                           + (f"unknown {unknown}" if unknown else f"missing {missing}"))
+    if ("rn" in plans) != ("rn" in ref["settings"]):
+        raise SummaryError(f"{str(path)!r}: RN plans and settings.rn (the RN's file name) go together; "
+                           f"{'the plans have no rn' if 'rn' in ref['settings'] else 'settings.rn is missing'}")
+    scenes = None
+    for kind in (k for k in REFERENCE_KINDS if k in plans):
+        result = plans[kind]
+        _require(result, PLAN_KEYS, f"plans.{kind}.", path)
+        for i, outcome in enumerate(result["outcomes"]):
+            _require(outcome, OUTCOME_KEYS, f"plans.{kind}.outcomes[{i}].", path)
+        outcomes = result["outcomes"]
+        k = sum(o["success"] for o in outcomes)
+        if result["n"] != len(outcomes) or result["successes"] != k:
+            raise SummaryError(f"{str(path)!r}: plans.{kind} says {result['successes']}/{result['n']} but its "
+                               f"outcomes hold {k}/{len(outcomes)}")
+        if len(outcomes) != ref["settings"]["eval_scenes"]:
+            raise SummaryError(f"{str(path)!r}: plans.{kind} has {len(outcomes)} outcomes, settings.eval_scenes "
+                               f"is {ref['settings']['eval_scenes']}")
+        seeds = [o["seed"] for o in outcomes]
+        if scenes is not None and seeds != scenes:
+            raise SummaryError(f"{str(path)!r}: plans.{kind} ran on other scenes than plans.expert "
+                               f"({seeds} != {scenes})")
+        scenes = seeds
+    expected = reference_file_name(ref["task"])
+    if path.name != expected:
+        raise SummaryError(f"{str(path)!r}: the reference of task {ref['task']!r} belongs in a file named "
+                           f"{expected!r}")
+
+
+def reference_seeds(ref: Mapping[str, Any]) -> list[int]:
+    """The scene seeds a (checked) reference ran on, in order."""
+    return [int(o["seed"]) for o in ref["plans"]["expert"]["outcomes"]]
+
+
+def read_reference(path: Path) -> dict[str, Any]:
+    """The reference summary at ``path``, checked (``check_reference``); SummaryError naming the file when it is
+    missing, not valid JSON or malformed."""
+    path = Path(path)
+    try:
+        ref = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SummaryError(f"{str(path)!r}: no such reference file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SummaryError(f"{str(path)!r}: not valid JSON ({exc})") from None
+    check_reference(ref, path)
+    return ref
+
+
+def read_references(directory: Path) -> dict[str, dict[str, Any]]:
+    """Every reference summary (``reference-*.json``) in ``directory``, by task in file-name order; empty when
+    there is none (or no directory). SummaryError naming a malformed file."""
+    directory = Path(directory)
+    paths = sorted(directory.glob(f"{REFERENCE_PREFIX}*.json")) if directory.is_dir() else []
+    refs = [read_reference(p) for p in paths]
+    return {r["task"]: r for r in refs}
+
+
+def write_reference(directory: Path, ref: Mapping[str, Any]) -> Path:
+    """Check ``ref`` (``check_reference``) and write it atomically to ``directory/reference-<task>.json`` in the
+    one byte form of the point summaries; returns the path. A local absolute path in a string value is refused."""
+    data = json.loads(summary_bytes(ref))
+    path = Path(directory) / reference_file_name(str(data.get("task")))
+    check_reference(data, path)
+    absolute = [s for s in _strings(data) if s.startswith("/")]
+    if absolute:
+        raise SummaryError(f"{str(path)!r}: a committed reference must not hold a local absolute path, got "
+                           f"{absolute[0]!r}")
+    return write_atomic(path, summary_bytes(data))
+
+
+def reference_reuse(existing: Mapping[str, Any] | None, expected: Mapping[str, Any]) -> tuple[bool, str]:
+    """Whether the command may keep the reference ``existing`` (None: there is none) for the one it would compute
+    with ``expected`` (``REFERENCE_RECORD_KEYS``), and why (``prl.ln_summary.reuse_decision``)."""
+    return reuse_decision(existing, expected, REFERENCE_RECORD_KEYS)

@@ -1,0 +1,170 @@
+"""The synthesis proposal: the distribution plans are drawn from, fixed (the task's prior) or adapted between rounds.
+
+Synthesis keeps the plans that succeed in simulation. Drawn from the task's prior ``p`` (``prl.plb``), the kept
+plans are a sample of p(plan | success); on a task whose prior rarely succeeds (the tweeze: 8%) most of the
+physics is spent on failures. The adaptive proposal is the cross-entropy method over the per-dimension
+categoricals (``prl.cem.update``): synthesis runs in rounds of ``round_attempts`` attempts per shard; between
+rounds each dimension moves towards the frequencies of its choices among the round's successful plans,
+
+    q_d <- smoothing * freq_d(successes of the round) + (1 - smoothing) * q_d,   q_d <- max(q_d, floor * p_d), renormalised
+
+starting from q = p. The floor keeps every choice the prior allows at a fixed fraction of its prior probability,
+so no choice is ever dropped and every kept plan has a bounded weight. The proposal of round r depends only on
+the attempts of rounds < r, which are themselves fixed by the run seed: the result does not depend on the
+number of workers, nor on which shard finished first.
+
+A plan drawn from q and kept is a sample of q(plan) P(success | plan) (up to a constant); its importance weight
+``w = p(plan) / q(plan)`` makes the weighted kept plans a sample of p(plan) P(success | plan), the distribution
+a prior-only run keeps (self-normalised: only ratios of weights matter). Each attempt records
+``proposal_logp`` and ``prior_logp``; whatever reads the demos as "successful plans under the prior" weights
+by ``importance_weights`` (the RN's loss and Fig 7, the LN's pre-training).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from prl import cem
+from prl.stats import wilson_interval
+
+PROPOSALS: tuple[str, ...] = ("prior", "adaptive")
+"""Proposal kinds: the task's fixed prior, or the cross-entropy method between rounds (module docstring)."""
+
+
+@dataclass(frozen=True)
+class ProposalConfig:
+    """How synthesis draws plans (module docstring)."""
+
+    kind: str = "adaptive"
+    """One of ``PROPOSALS``."""
+    round_attempts: int = 32
+    """Attempts per shard per round; the proposal is updated between rounds (adaptive only)."""
+    smoothing: float = 0.5
+    """Weight of the round's success frequencies in the update (1: jump to them; 0: never move)."""
+    floor: float = 0.2
+    """Every choice keeps at least ``floor`` x its prior probability (before renormalising)."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in PROPOSALS:
+            raise ValueError(f"unknown proposal {self.kind!r}; known: {', '.join(PROPOSALS)}")
+        if isinstance(self.round_attempts, bool) or not isinstance(self.round_attempts, int) or self.round_attempts < 1:
+            raise ValueError(f"proposal round_attempts must be an integer >= 1, got {self.round_attempts!r}")
+        if not _number(self.smoothing) or not 0.0 <= self.smoothing <= 1.0:
+            raise ValueError(f"proposal smoothing must be a number in [0, 1], got {self.smoothing!r}")
+        if not _number(self.floor) or not 0.0 < self.floor < 1.0:
+            raise ValueError(f"proposal floor must be a number in (0, 1), got {self.floor!r}")
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+Probs = tuple[np.ndarray, ...]
+
+
+def as_probs(probs: Sequence[Sequence[float]]) -> Probs:
+    """Per-dimension probabilities as float arrays (from lists, e.g. a spec sent to a worker)."""
+    return tuple(np.asarray(p, dtype=np.float64) for p in probs)
+
+
+def log_prob(probs: Sequence[np.ndarray], plan: Sequence[int]) -> float:
+    """log of the product over dimensions of ``probs[d][plan[d]]`` (``-inf`` for a choice of probability 0)."""
+    if len(plan) != len(probs):
+        raise ValueError(f"plan {list(plan)} has {len(plan)} dimensions, the distribution {len(probs)}")
+    with np.errstate(divide="ignore"):
+        return float(sum(np.log(float(p[int(c)])) for p, c in zip(probs, plan)))
+
+
+def sample_plan(probs: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    """One plan, each dimension drawn independently (the same draws as ``PhysicalLawsBank.sample_plan`` when
+    ``probs`` is the task's prior: a prior-only run keeps its plans)."""
+    return np.array([rng.choice(len(p), p=p) for p in probs], dtype=np.int64)
+
+
+def adapt(current: Sequence[np.ndarray], prior: Sequence[np.ndarray], successes: np.ndarray,
+          cfg: ProposalConfig) -> Probs:
+    """The next round's proposal from this round's (``current``) and its successful plans (module docstring);
+    unchanged when the round had no success or the proposal is the prior."""
+    successes = np.asarray(successes, dtype=np.int64).reshape(-1, len(prior))
+    if cfg.kind == "prior":
+        return as_probs(prior)
+    if not len(successes):
+        return as_probs(current)
+    return tuple(cem.update(list(current), successes, smoothing=cfg.smoothing, reference=list(prior), floor=cfg.floor))
+
+
+def round_proposals(prior: Sequence[np.ndarray], successes_by_round: Sequence[np.ndarray],
+                    cfg: ProposalConfig) -> list[Probs]:
+    """The proposal of every round: round 0's is the prior, round r + 1's ``adapt``s round r's on its successes.
+    Returns ``len(successes_by_round) + 1`` proposals (the last for the round about to run)."""
+    out = [as_probs(prior)]
+    for plans in successes_by_round:
+        out.append(adapt(out[-1], prior, plans, cfg))
+    return out
+
+
+def importance_weights(prior_logp: Sequence[float], proposal_logp: Sequence[float]) -> np.ndarray:
+    """``p / q`` of each kept plan, scaled to mean 1 (self-normalised importance sampling; all 1 for a prior run)."""
+    a, b = np.asarray(prior_logp, dtype=np.float64), np.asarray(proposal_logp, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"need one prior and one proposal log-probability per plan, got shapes {a.shape}, {b.shape}")
+    if not len(a):
+        return a
+    if not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
+        raise ValueError("a kept plan has a log-probability of -inf or nan: the prior or the proposal excludes it")
+    log_w = a - b
+    w = np.exp(log_w - log_w.max())
+    return w / w.mean()
+
+
+def effective_sample_size(weights: Sequence[float]) -> float:
+    """Kish's effective sample size ``(sum w)^2 / sum w^2`` (n for equal weights)."""
+    w = np.asarray(weights, dtype=np.float64)
+    return float(w.sum() ** 2 / np.sum(w * w)) if len(w) else 0.0
+
+
+def weighted_choice_freqs(plans: np.ndarray, sizes: Sequence[int], weights: Sequence[float] | None = None) -> Probs:
+    """Per dimension, the (weighted) frequency of each choice among ``plans`` (rows)."""
+    plans = np.asarray(plans, dtype=np.int64).reshape(-1, len(sizes))
+    w = np.ones(len(plans)) if weights is None else np.asarray(weights, dtype=np.float64)
+    out = []
+    for d, m in enumerate(sizes):
+        f = np.bincount(plans[:, d], weights=w, minlength=int(m)).astype(np.float64)
+        out.append(f / f.sum() if f.sum() else f)
+    return tuple(out)
+
+
+def entropies(plans: np.ndarray, sizes: Sequence[int]) -> np.ndarray:
+    """Per dimension, the entropy (nats) of the choices' frequencies among ``plans``."""
+    out = []
+    for f in weighted_choice_freqs(plans, sizes):
+        nz = f[f > 0]
+        out.append(max(0.0, float(-(nz * np.log(nz)).sum())))
+    return np.asarray(out)
+
+
+def round_table(rows: Sequence[Mapping[str, Any]], sizes: Sequence[int]) -> list[dict[str, Any]]:
+    """The record of one task's synthesis per round, from its attempt-log rows (any shard order): the round's
+    attempts, successes and yield with its 95% Wilson interval, and over the demos kept up to the round's end
+    their number, distinct plans, per-dimension entropy (nats) and effective sample size under the weights."""
+    out = []
+    rounds = sorted({int(r.get("round", 0)) for r in rows})
+    for k in rounds:
+        now = [r for r in rows if int(r.get("round", 0)) == k]
+        kept = [r for r in rows if int(r.get("round", 0)) <= k and r["success"]]
+        n, ok = len(now), sum(bool(r["success"]) for r in now)
+        lo, hi = wilson_interval(ok, n) if n else (0.0, 0.0)
+        plans = np.array([r["plan"] for r in kept], dtype=np.int64).reshape(-1, len(sizes))
+        logged = kept and all("proposal_logp" in r and "prior_logp" in r for r in kept)
+        weights = importance_weights([r["prior_logp"] for r in kept], [r["proposal_logp"] for r in kept]) \
+            if logged else np.ones(len(kept))
+        out.append({"round": k, "attempts": n, "successes": ok, "yield": ok / n if n else 0.0,
+                    "yield_ci95": [lo, hi], "kept": len(kept),
+                    "distinct_plans": len({tuple(p) for p in plans.tolist()}),
+                    "entropy": [round(float(e), 4) for e in entropies(plans, sizes)],
+                    "ess": effective_sample_size(weights)})
+    return out

@@ -1,0 +1,507 @@
+"""The LN results report, ``docs/results.md`` and its Fig 8 per task, made from the committed point summaries alone
+(``prl.ln_summary``; ``python -m flows.report``): no MLflow store, no ``outputs/``.
+
+Per task and variant (a group: task, variant, K, timesteps) the final plan's success on the evaluation scenes,
+pooled over seeds with its Wilson interval and per seed; the interquartile mean of the seeds' success fractions
+with a stratified-bootstrap interval over seeds and scenes, and the probability that K = 1,280 beats K = 0 and
+beats BC (``prl.robust_stats``, rliable's method); the curves' first and last window success; the compute; the
+provenance (code versions, dataset digests); and what of the planned experiment (``planned_points``) is missing.
+Beside each task's variants, the reference plans of ``reference-<task>.json`` (``prl.ln_reference``, written by
+``python -m flows.ln_reference``: the expert plan, a prior-sampled plan and the RN's argmax plan on the points'
+evaluation scenes), with a flag when their scenes or code version are not the points'. The same summaries give the
+same bytes: no clock, fixed bootstrap seed, sorted orders, PNGs without the
+matplotlib version.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prl.atomic import write_atomic
+from prl.config import LN_VARIANTS, PAPER_LN_DEMO_STEPS, LNConfig
+from prl.constants import REPO_ROOT, TASKS
+from prl.ln_reference import (
+    REFERENCE_KINDS,
+    REFERENCE_LABELS,
+    read_references,
+    reference_file_name,
+    reference_seeds,
+)
+from prl.ln_summary import read_summaries
+from prl.robust_stats import probability_of_improvement, stratified_bootstrap_ci
+from prl.stats import wilson_interval
+
+PAPER_TIMESTEPS = LNConfig().timesteps
+"""The paper's RL budget (3,200 timesteps), the experiment's for every point but joint control at equal frames."""
+PLAN_SEEDS: tuple[int, ...] = (0, 1, 2)
+"""The seeds of every planned point."""
+HAMMER_EXTRA_K: tuple[int, ...] = (320, 640, 2560)
+"""The hammer's further demonstration steps (the paper's ablation axis, beside 0 and 1,280)."""
+JOINT_FRAMES_PER_STEP = 10
+"""Physics frames per joint-control step (``envs.joint_env.JOINT_FRAMES_PER_STEP``; a test keeps them equal): the
+equal-frames budget is the plan runs' frames over this."""
+BOOTSTRAP_REPS = 10_000
+"""Bootstrap draws of every interval of the report."""
+BOOTSTRAP_SEED = 0
+"""The seed of every bootstrap of the report (the same summaries give the same intervals)."""
+TARGET = 0.9
+"""The issue's target: K = 1,280's final plan success pooled over seeds, on every task."""
+COMMAND = "python -m flows.report"
+"""The command that makes the report."""
+
+
+@dataclass(frozen=True, order=True)
+class Group:
+    """The points that differ only in their seed: a row of the report."""
+
+    task_index: int
+    """Position of the task in ``prl.constants.TASKS`` (unknown tasks after them): the rows' order."""
+    task: str
+    """Task name."""
+    variant_index: int
+    """Position of the variant in ``prl.config.LN_VARIANTS``."""
+    variant: str
+    """physics, bc or joint."""
+    demo_steps: int
+    """K."""
+    timesteps: int
+    """RL timesteps trained."""
+
+    @property
+    def label(self) -> str:
+        """``physics K=1280``, ``bc K=1280``, ``joint``; the budget appended unless it is the paper's."""
+        base = "joint control" if self.variant == "joint" else f"{self.variant} K={self.demo_steps}"
+        return base if self.timesteps == PAPER_TIMESTEPS else f"{base}, {self.timesteps:,} steps"
+
+
+def group_of(summary: Mapping[str, Any]) -> Group:
+    """The ``Group`` of one summary."""
+    p = summary["point"]
+    task_index = TASKS.index(p["task"]) if p["task"] in TASKS else len(TASKS)
+    variant_index = LN_VARIANTS.index(p["variant"]) if p["variant"] in LN_VARIANTS else len(LN_VARIANTS)
+    return Group(task_index, p["task"], variant_index, p["variant"], int(p["demo_steps"]), int(summary["timesteps"]))
+
+
+def grouped(summaries: Mapping[str, Mapping[str, Any]]) -> dict[Group, list[Mapping[str, Any]]]:
+    """The summaries by group (sorted), each group's by seed."""
+    out: dict[Group, list[Mapping[str, Any]]] = {}
+    for s in summaries.values():
+        out.setdefault(group_of(s), []).append(s)
+    return {g: sorted(out[g], key=lambda s: s["point"]["seed"]) for g in sorted(out)}
+
+
+@dataclass(frozen=True)
+class Planned:
+    """One point of the planned experiment (the issue's)."""
+
+    task: str
+    """Task name."""
+    variant: str
+    """physics, bc or joint."""
+    demo_steps: int
+    """K."""
+    seed: int
+    """Seed."""
+    equal_frames: bool = False
+    """Joint control at the plan runs' physics frames (any budget above the paper's) rather than 3,200 steps."""
+
+    def done_by(self, summary: Mapping[str, Any]) -> bool:
+        """Whether ``summary`` is this point."""
+        p = summary["point"]
+        same = (p["task"], p["variant"], p["demo_steps"], p["seed"]) == (self.task, self.variant, self.demo_steps,
+                                                                           self.seed)
+        t = int(summary["timesteps"])
+        return same and (t > PAPER_TIMESTEPS if self.equal_frames else t == PAPER_TIMESTEPS)
+
+
+def planned_points(tasks: Sequence[str] = TASKS, seeds: Sequence[int] = PLAN_SEEDS) -> list[Planned]:
+    """The experiment of the issue: per task physics K = 1,280, BC K = 1,280, physics K = 0 and joint control at
+    3,200 timesteps on ``seeds``, joint control at the plan runs' frames on the first seed; the hammer also physics
+    K in ``HAMMER_EXTRA_K``."""
+    out = []
+    for t in tasks:
+        arms = [("physics", PAPER_LN_DEMO_STEPS), ("bc", PAPER_LN_DEMO_STEPS), ("physics", 0), ("joint", 0)]
+        arms += [("physics", k) for k in HAMMER_EXTRA_K] if t == "hammer" else []
+        out += [Planned(t, v, k, s) for v, k in arms for s in seeds]
+        out.append(Planned(t, "joint", 0, seeds[0], equal_frames=True))
+    return out
+
+
+def missing_points(summaries: Mapping[str, Mapping[str, Any]], plan: Sequence[Planned]) -> list[Planned]:
+    """The planned points that no summary is."""
+    return [p for p in plan if not any(p.done_by(s) for s in summaries.values())]
+
+
+def _runs(members: Sequence[Mapping[str, Any]]) -> list[list[float]]:
+    return [[float(o["success"]) for o in s["eval"]["outcomes"]] for s in members]
+
+
+def _rate(k: int, n: int) -> str:
+    if n == 0:
+        return "0/0"
+    lo, hi = wilson_interval(k, n)
+    return f"{k}/{n} = {k / n:.2f} ({lo:.2f}-{hi:.2f})"
+
+
+def _ci(estimate: float, lo: float, hi: float) -> str:
+    return f"{estimate:.2f} ({lo:.2f}-{hi:.2f})"
+
+
+def _window(members: Sequence[Mapping[str, Any]]) -> str:
+    parts = [f"{s['rows'][0]['window_success_rate']:.2f} -> {s['rows'][-1]['window_success_rate']:.2f}"
+             if s["rows"] else "no update" for s in members]
+    return ", ".join(parts)
+
+
+def _iqm_cell(runs: Mapping[str, list[list[float]]]) -> str:
+    if not all(r for rs in runs.values() for r in rs):
+        return "-"
+    return _ci(*stratified_bootstrap_ci(runs, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED))
+
+
+def _poi_cell(x: Mapping[str, list[list[float]]], y: Mapping[str, list[list[float]]]) -> str:
+    if not x or not all(r for rs in [*x.values(), *y.values()] for r in rs):
+        return "-"
+    return _ci(*probability_of_improvement(x, y, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED))
+
+
+SUCCESS_HEADER = ("| variant | seeds | per seed | pooled (95% Wilson CI) | IQM (95% bootstrap CI) "
+                  "| training window success, first -> last update |")
+"""The header of a task's table of final success."""
+
+
+def _task_order(task: str) -> tuple[int, str]:
+    return (TASKS.index(task) if task in TASKS else len(TASKS), task)
+
+
+def reference_rows(ref: Mapping[str, Any]) -> list[str]:
+    """A success-table row per plan kind of a reference (``prl.ln_reference``): not trained, one run."""
+    rows = []
+    for kind in (k for k in REFERENCE_KINDS if k in ref["plans"]):
+        r = ref["plans"][kind]
+        rows.append(f"| {REFERENCE_LABELS[kind]} (reference) | - | {r['successes']}/{r['n']} "
+                    f"| {_rate(r['successes'], r['n'])} | - | not trained |")
+    return rows
+
+
+def reference_note(ref: Mapping[str, Any], members: Sequence[Mapping[str, Any]]) -> str:
+    """Where a task's reference rows come from, and whether they ran on its points' scenes and code version (a
+    flag when not)."""
+    st, seeds = ref["settings"], reference_seeds(ref)
+    rn = f"; the RN is `{st['rn']}`" if "rn" in ref["plans"] else ""
+    text = (f"Reference rows (`{reference_file_name(ref['task'])}`): the task's expert plan, a plan sampled from its "
+            f"prior per scene{' and the RN argmax plan' if 'rn' in ref['plans'] else ''}, executed on the "
+            f"{len(seeds)} scenes of eval seed {st['eval_seed']} (scene seeds {seeds[0]} to {seeds[-1]}){rn}.")
+    if not members:
+        return text + " No point of this task yet."
+    point_seeds = {tuple(o["seed"] for o in s["eval"]["outcomes"]) for s in members}
+    if point_seeds == {tuple(seeds)}:
+        text += " The same scenes as every point's above."
+    else:
+        evals = sorted({(s["settings"].get("eval_seed"), len(s["eval"]["outcomes"])) for s in members}, key=str)
+        text += (" **Not the points' scenes**: the points ran on "
+                 + ", ".join(f"{n} scenes of eval seed {seed}" for seed, n in evals) + ".")
+    versions = sorted({s["code_version"] for s in members})
+    if versions == [ref["code_version"]]:
+        text += f" The same code version as the points (`{ref['code_version']}`)."
+    else:
+        text += (f" **Another code version**: the reference's `{ref['code_version']}`, the points' "
+                 + ", ".join(f"`{v}`" for v in versions) + ".")
+    return text
+
+
+def success_tables(groups: Mapping[Group, Sequence[Mapping[str, Any]]],
+                   references: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
+    """Per task, a table of its groups' final success (see the module docstring) and its reference plans' rows
+    (``references`` by task), and the target's verdict."""
+    lines: list[str] = []
+    references = references or {}
+    for task in sorted({*(g.task for g in groups), *references}, key=_task_order):
+        lines += [f"### {task}", "", SUCCESS_HEADER, "|---|---|---|---|---|---|"]
+        for g, members in groups.items():
+            if g.task != task:
+                continue
+            k, n = sum(s["eval"]["successes"] for s in members), sum(s["eval"]["n"] for s in members)
+            per_seed = ", ".join(f"{s['eval']['successes']}/{s['eval']['n']}" for s in members)
+            seeds = ",".join(str(s["point"]["seed"]) for s in members)
+            lines.append(f"| {g.label} | {seeds} | {per_seed} | {_rate(k, n)} | {_iqm_cell({task: _runs(members)})} "
+                         f"| {_window(members)} |")
+        if task in references:
+            lines += reference_rows(references[task])
+            lines += ["", reference_note(references[task], [s for g, m in groups.items() if g.task == task
+                                                             for s in m])]
+        ref = [m for g, m in groups.items() if g.task == task and g.variant == "physics"
+               and g.demo_steps == PAPER_LN_DEMO_STEPS and g.timesteps == PAPER_TIMESTEPS]
+        if ref:
+            k, n = sum(s["eval"]["successes"] for s in ref[0]), sum(s["eval"]["n"] for s in ref[0])
+            verdict = "met" if n and k / n >= TARGET else "**missed**"
+            lines += ["", (f"Target (physics K = {PAPER_LN_DEMO_STEPS:,}, pooled >= {TARGET:.2f}): {verdict} "
+                          f"({k}/{n} over {len(ref[0])} seed{'s' if len(ref[0]) != 1 else ''}).")]
+        else:
+            lines += ["", f"Target (physics K = {PAPER_LN_DEMO_STEPS:,}, pooled >= {TARGET:.2f}): not run yet."]
+        lines.append("")
+    return lines
+
+
+def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
+    """Per variant at the paper's budget, the IQM over every task's seeds, stratified by task."""
+    by_variant: dict[tuple[int, str, int], dict[str, list[list[float]]]] = {}
+    for g, members in groups.items():
+        if g.timesteps == PAPER_TIMESTEPS:
+            by_variant.setdefault((g.variant_index, g.variant, g.demo_steps), {})[g.task] = _runs(members)
+    lines = ["| variant | tasks | IQM over all seeds (95% stratified-bootstrap CI) |", "|---|---|---|"]
+    for (_, variant, k), runs in sorted(by_variant.items()):
+        label = Group(0, "", 0, variant, k, PAPER_TIMESTEPS).label
+        lines.append(f"| {label} | {', '.join(runs)} | {_iqm_cell(runs)} |")
+    return lines
+
+
+def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
+    """P(physics K = 1,280 > physics K = 0) and P(physics K = 1,280 > BC K = 1,280), per task and over the tasks
+    that have both, at the paper's budget."""
+    def runs_of(variant: str, k: int) -> dict[str, list[list[float]]]:
+        return {g.task: _runs(m) for g, m in groups.items()
+                if g.variant == variant and g.demo_steps == k and g.timesteps == PAPER_TIMESTEPS}
+
+    tasks = list(dict.fromkeys(g.task for g in groups))
+    ref = runs_of("physics", PAPER_LN_DEMO_STEPS)
+    lines = [f"| comparison | {' | '.join(tasks)} | all tasks with both |", "|---|" + "---|" * (len(tasks) + 1)]
+    for name, other in ((f"P(physics K={PAPER_LN_DEMO_STEPS} > physics K=0)", runs_of("physics", 0)),
+                        (f"P(physics K={PAPER_LN_DEMO_STEPS} > bc K={PAPER_LN_DEMO_STEPS})",
+                         runs_of("bc", PAPER_LN_DEMO_STEPS))):
+        both = [t for t in tasks if t in ref and t in other]
+        cells = [_poi_cell({t: ref[t]}, {t: other[t]}) if t in both else "-" for t in tasks]
+        overall = _poi_cell({t: ref[t] for t in both}, {t: other[t] for t in both}) if both else "-"
+        lines.append(f"| {name} | {' | '.join(cells)} | {overall} |")
+    return lines
+
+
+def _hours(summary: Mapping[str, Any]) -> float:
+    start = datetime.datetime.fromisoformat(summary["started"])
+    end = datetime.datetime.fromisoformat(summary["finished"])
+    return max(0.0, (end - start).total_seconds() / 3600.0)
+
+
+def elapsed_hours(summaries: Sequence[Mapping[str, Any]]) -> float:
+    """Hours during which at least one point ran (the union of the points' start-finish intervals)."""
+    spans = sorted((datetime.datetime.fromisoformat(s["started"]), datetime.datetime.fromisoformat(s["finished"]))
+                   for s in summaries)
+    total, current = 0.0, None
+    for start, end in spans:
+        if current is None or start > current[1]:
+            if current is not None:
+                total += (current[1] - current[0]).total_seconds()
+            current = [start, end]
+        else:
+            current[1] = max(current[1], end)
+    if current is not None:
+        total += (current[1] - current[0]).total_seconds()
+    return total / 3600.0
+
+
+def compute_table(summaries: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Per task and in all: points, their wall time and core-hours (``cores`` x start-finish), train and evaluation
+    hours; then the elapsed time and the dates."""
+    rows: dict[str, list[Mapping[str, Any]]] = {}
+    for s in sorted(summaries.values(), key=lambda s: group_of(s)):
+        rows.setdefault(s["point"]["task"], []).append(s)
+    everything = [s for members in rows.values() for s in members]
+    lines = ["| task | points | wall time, summed over points (h) | core-hours | training (h) | evaluation (h) |",
+             "|---|---|---|---|---|---|"]
+    for name, members in [*rows.items(), ("all", everything)]:
+        wall = sum(_hours(s) for s in members)
+        cores = sum(s["cores"] * _hours(s) for s in members)
+        train = sum(s["train_seconds"] for s in members) / 3600.0
+        ev = sum(s["eval_seconds"] for s in members) / 3600.0
+        lines.append(f"| {name} | {len(members)} | {wall:.1f} | {cores:.1f} | {train:.1f} | {ev:.1f} |")
+    first = min(s["started"] for s in everything)
+    last = max(s["finished"] for s in everything)
+    lines += ["", (f"The points ran between {first} and {last} (UTC); at least one point was running during "
+                  f"{elapsed_hours(everything):.1f} h of that (points run side by side, so this is less than the "
+                  f"summed wall time). `cores` is what a point keeps busy: 1 with one plan environment, else one "
+                  f"per environment plus the main process.")]
+    return lines
+
+
+def provenance_table(summaries: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Per task, the code versions and dataset digests of its points (each with its count), and the settings
+    whose values differ between points of the report (beyond the point's own)."""
+    by_task: dict[str, list[Mapping[str, Any]]] = {}
+    for s in sorted(summaries.values(), key=lambda s: group_of(s)):
+        by_task.setdefault(s["point"]["task"], []).append(s)
+
+    def counted(values: list[Any]) -> str:
+        return ", ".join(f"`{v}` ({values.count(v)})" for v in sorted(set(values), key=str))
+
+    lines = ["| task | code versions (points) | dataset digests (points; joint control: none) |", "|---|---|---|"]
+    for task, members in by_task.items():
+        digests = [s["dataset_digest"] for s in members if s["dataset_digest"] is not None]
+        lines.append(f"| {task} | {counted([s['code_version'] for s in members])} | {counted(digests) or '-'} |")
+    per_point = {"ln.demo_steps", "ln.seed", "ln.pretrain_mode", "ln.timesteps"}
+    keys = sorted({k for s in summaries.values() for k in s["settings"]} - per_point)
+    varying = [k for k in keys if len({repr(s["settings"].get(k)) for s in summaries.values()
+                                       if k in s["settings"]}) > 1]
+    lines += ["", "Settings that differ between points (beyond K, seed, pre-training mode and timesteps): "
+              + (", ".join(f"`{k}`" for k in varying) if varying else "none") + "."]
+    return lines
+
+
+def equal_frames_budget(groups: Mapping[Group, Sequence[Mapping[str, Any]]], task: str) -> int | None:
+    """Joint-control steps with the physics frames of ``task``'s K = 1,280 plan runs (mean of their final frames
+    over ``JOINT_FRAMES_PER_STEP``, rounded up to a whole A2C update of 64); None before those runs exist."""
+    frames = [s["rows"][-1]["frames"] for g, m in groups.items() for s in m
+              if g.task == task and g.variant == "physics" and g.demo_steps == PAPER_LN_DEMO_STEPS
+              and g.timesteps == PAPER_TIMESTEPS and s["rows"]]
+    if not frames:
+        return None
+    steps = float(np.mean(frames)) / JOINT_FRAMES_PER_STEP
+    return int(np.ceil(steps / 64.0) * 64)
+
+
+def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[Group, Sequence[Any]],
+                    results_rel: str) -> list[str]:
+    """The planned points without a summary, per task, and the commands that run them."""
+    plan = planned_points()
+    missing = missing_points(summaries, plan)
+    lines = [f"{len(plan) - len(missing)} of the {len(plan)} planned points are done."]
+    if not missing:
+        return lines
+    lines += ["", "| task | missing points: variant, seeds |", "|---|---|"]
+    for task in dict.fromkeys(p.task for p in missing):
+        arms: dict[str, list[str]] = {}
+        for p in missing:
+            if p.task == task:
+                arm = "joint control at equal frames" if p.equal_frames else \
+                    Group(0, task, 0, p.variant, p.demo_steps, PAPER_TIMESTEPS).label
+                arms.setdefault(arm, []).append(str(p.seed))
+        lines.append(f"| {task} | {'; '.join(f'{arm}: {",".join(seeds)}' for arm, seeds in arms.items())} |")
+    budgets = [f"{t}: {b:,}" if (b := equal_frames_budget(groups, t)) else f"{t}: after its K = 1,280 runs"
+               for t in dict.fromkeys(p.task for p in missing if p.equal_frames)]
+    seeds, tail = ",".join(map(str, PLAN_SEEDS)), f"--results-dir {results_rel}"
+    lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
+                  + "--pointnet-path ...`, and an `--output-dir` of each command's own; the hammer's K = 2,560 needs "
+                  + "a dataset with at least 2,560 hammer demos):",
+              "", "```",
+              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --variants physics,bc,joint --demo-steps "
+              + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+              "python -m flows.ablation $D --tasks hammer --variants physics --demo-steps "
+              + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
+              f"python -m flows.ablation $D --tasks <task> --variants joint --seeds {PLAN_SEEDS[0]} "
+              + f"--ln-timesteps <equal-frames steps> {tail}", "```"]
+    if budgets:
+        lines += ["", "Equal-frames joint-control steps: " + "; ".join(budgets) + "."]
+    return lines
+
+
+def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: Path) -> dict[str, list[Path]]:
+    """Fig 8 per task against timesteps and against frames (``fig8_<task>_timesteps.png``, ``..._frames.png``): top
+    physics K = 1,280 and K = 0 against joint control, bottom every demonstration-step variant and BC; mean over
+    seeds with a min-max band. Returns each task's files."""
+    from prl.plots import plot_fig8_panels  # heavy: matplotlib
+
+    out: dict[str, list[Path]] = {}
+    for task in dict.fromkeys(g.task for g in groups):
+        mine = {g: [s["rows"] for s in m] for g, m in groups.items() if g.task == task}
+        top = {g.label: rows for g, rows in mine.items()
+               if g.variant == "joint" or (g.variant == "physics" and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
+                                           and g.timesteps == PAPER_TIMESTEPS)}
+        bottom = {g.label: rows for g, rows in mine.items() if g.variant != "joint"}
+        panels = [("physics-guided (K = 1,280 and K = 0) vs joint control", top),
+                  ("demonstration steps K, and BC", bottom)]
+        for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
+            path = Path(out_dir) / f"fig8_{task}_{x_key}.png"
+            plot_fig8_panels(panels, x_key, "window_success_rate", path, title=f"{task}: LN success while training",
+                             x_label=x_label)
+            out.setdefault(task, []).append(path)
+    return out
+
+
+def _rel(path: Path, start: Path) -> str:
+    return Path(os.path.relpath(Path(path).resolve(), Path(start).resolve())).as_posix()
+
+
+HOW_TO_READ = (
+    f"- *pooled*: successes over all seeds' scenes with a 95% Wilson interval. *IQM*: the interquartile mean of the "
+    f"seeds' success fractions with a 95% stratified-bootstrap interval (seeds resampled, then the scenes within "
+    f"each seed; {BOOTSTRAP_REPS:,} draws, seed {BOOTSTRAP_SEED}): rliable's method (`prl/robust_stats.py`); with 3 "
+    f"seeds no seed is trimmed and the IQM is the mean.\n"
+    f"- *P(A > B)*: the probability that a seed of A scores above a seed of B (ties count half), averaged over tasks, "
+    f"with its bootstrap interval; 0.5 is no difference.\n"
+    f"- *training window success*: the success rate over the last update's worth of episodes, after the first and "
+    f"after the last A2C update, per seed.")
+"""The report's reading notes on its statistics."""
+FIG8_TEXT = (
+    "Success rate over the last update's worth of episodes while training; mean over seeds with a min-max band; log "
+    "axes (a joint-control step is 10 physics frames, a plan episode about 770). Top: physics-guided K = 1,280 and "
+    "K = 0 against joint control; bottom: the demonstration steps and BC.")
+"""What the report says of its figures."""
+PROVENANCE_TEXT = (
+    "Each summary records the code version of what decides its task's outcome (`prl.version.outcome_version`), the "
+    "digest of its demonstrations, its settings and its MLflow run id (the store need not exist); a sweep re-runs a "
+    "point whose summary differs from today's in any of them (`flows/ln_results.py`).")
+"""What the report says of the summaries' provenance."""
+REFERENCE_TEXT = (
+    "- *(reference)* rows: plans that are not trained, executed on the same evaluation scenes as the points (the "
+    "same eval seeds): the task's expert plan, a plan sampled from its prior per scene and, where an RN was given, "
+    "the RN's argmax plan (`python -m flows.ln_reference`, `{results_rel}/reference-<task>.json`). A note under the "
+    "table flags a reference whose scenes or code version are not the points'.")
+"""What the report says of the reference rows (only when there are some)."""
+
+
+def render(summaries: Mapping[str, Mapping[str, Any]], results_rel: str, results_link: str,
+           figure_links: Mapping[str, Sequence[str]],
+           references: Mapping[str, Mapping[str, Any]] | None = None) -> str:
+    """The report's markdown (see the module docstring): ``results_rel`` names the summaries' directory in the text
+    and commands (relative to the repository), ``results_link`` and ``figure_links`` (each task's figures) are
+    relative to the report; ``references`` are the reference plans' summaries by task."""
+    groups = grouped(summaries)
+    eval_n = " or ".join(map(str, sorted({s["eval"]["n"] for s in summaries.values()})))
+    intro = (f"Generated by `{COMMAND}` from the committed point summaries in [`{results_rel}/`]({results_link}/) "
+             f"alone (no MLflow store, no `outputs/`); do not edit by hand: a sweep run with `--results-dir "
+             f"{results_rel}` adds or replaces summaries, and the command makes this page and its figures again. "
+             f"The pipeline's earlier runs, with their commands and dates, are in [runs.md](runs.md).")
+    points = (f"- A point is one seed of one variant: A2C over the Representation Space pre-trained on K "
+              f"demonstration steps, actor and critic (`physics`; K = 0 is pure RL) or the actor alone (`bc`), or A2C "
+              f"on the 30 joint targets (`joint control`), trained for {PAPER_TIMESTEPS:,} RL timesteps unless the row "
+              f"says otherwise; its final deterministic plan is executed on {eval_n} unseen scenes (the RN "
+              f"evaluation's).")
+    lines = [f"<!-- Generated by `{COMMAND}` from {results_rel}/*.json; do not edit by hand. -->",
+             "# Results: the Learning Network on the four tasks (Fig 8)", "", intro, "",
+             "## How to read it", "", points, HOW_TO_READ]
+    if references:
+        lines.append(REFERENCE_TEXT.format(results_rel=results_rel))
+    lines += ["", "## Final success on unseen scenes", ""]
+    lines += success_tables(groups, references)
+    lines += ["## Across tasks", "", *across_tasks_table(groups), ""]
+    lines += ["## Probability of improvement", "", *improvement_table(groups), ""]
+    lines += ["## Fig 8", "", FIG8_TEXT, ""]
+    for task, links in figure_links.items():
+        alts = [f"{task}: Fig 8 against {Path(link).stem.rsplit('_', 1)[-1]}" for link in links]
+        lines += [f"### {task}", "", *(f"![{alt}]({link})" for alt, link in zip(alts, links, strict=True)), ""]
+    lines += ["## Compute", "", *compute_table(summaries), ""]
+    lines += ["## Provenance", "", PROVENANCE_TEXT, "", *provenance_table(summaries), ""]
+    lines += ["## Missing points", "", *missing_section(summaries, groups, results_rel)]
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def write_report(results_dir: Path, markdown: Path, figures_dir: Path, repo_root: Path | None = None) -> list[Path]:
+    """Read every summary of ``results_dir`` (``prl.ln_summary.read_summaries``: errors name a missing directory or
+    a malformed file) and its references (``prl.ln_reference.read_references``), draw the figures into ``figures_dir`` and write the report to ``markdown``; returns the
+    files written. The report names the summaries' directory relative to ``repo_root`` (default: the checkout's)
+    and links its files relative to itself."""
+    summaries = read_summaries(results_dir)
+    references = read_references(results_dir)
+    groups = grouped(summaries)
+    figures = draw_figures(groups, figures_dir)
+    here = Path(markdown).parent
+    links = {task: [_rel(p, here) for p in paths] for task, paths in figures.items()}
+    text = render(summaries, _rel(results_dir, repo_root or REPO_ROOT), _rel(results_dir, here), links, references)
+    write_atomic(Path(markdown), text)
+    return [Path(markdown), *[p for paths in figures.values() for p in paths]]

@@ -1,0 +1,177 @@
+"""The synthesis proposal: updates computed by hand, the floor, the weights that restore the prior."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prl.proposal import (
+    ProposalConfig,
+    adapt,
+    effective_sample_size,
+    importance_weights,
+    log_prob,
+    round_proposals,
+    round_table,
+    sample_plan,
+    weighted_choice_freqs,
+)
+
+PRIOR = (np.array([0.5, 0.5]), np.array([0.2, 0.3, 0.5]))
+
+
+def test_update_by_hand() -> None:
+    """Two successes [1, 2] and [1, 0]; smoothing 0.5, floor 0.2:
+    dim 0: 0.5 * [0, 1] + 0.5 * [0.5, 0.5] = [0.25, 0.75]; floors 0.1 -> unchanged.
+    dim 1: 0.5 * [0.5, 0, 0.5] + 0.5 * [0.2, 0.3, 0.5] = [0.35, 0.15, 0.5]; floors [0.04, 0.06, 0.1] -> unchanged."""
+    cfg = ProposalConfig(smoothing=0.5, floor=0.2)
+    q = adapt(PRIOR, PRIOR, np.array([[1, 2], [1, 0]]), cfg)
+    np.testing.assert_allclose(q[0], [0.25, 0.75])
+    np.testing.assert_allclose(q[1], [0.35, 0.15, 0.5])
+    # a second round with one success [1, 2]: dim 1 0.5 * [0, 0, 1] + 0.5 * [0.35, 0.15, 0.5] = [0.175, 0.075, 0.75]
+    q2 = adapt(q, PRIOR, np.array([[1, 2]]), cfg)
+    np.testing.assert_allclose(q2[1], [0.175, 0.075, 0.75])
+    np.testing.assert_allclose(q2[0], [0.125, 0.875])
+
+
+def test_floor_holds_and_no_success_keeps_the_proposal() -> None:
+    """smoothing 1 jumps to the successes' frequencies [0, 0, 1]; the floor 0.2 x prior lifts 0 -> 0.04 and 0.06,
+    renormalised by 1.1: [0.04, 0.06, 1] / 1.1."""
+    cfg = ProposalConfig(smoothing=1.0, floor=0.2)
+    q = adapt(PRIOR, PRIOR, np.array([[0, 2]] * 5), cfg)
+    np.testing.assert_allclose(q[1], np.array([0.04, 0.06, 1.0]) / 1.1)
+    for _ in range(20):  # however long it adapts, every choice keeps >= floor x prior / (1 + floor)
+        q = adapt(q, PRIOR, np.array([[0, 2]] * 5), cfg)
+    for p, pri in zip(q, PRIOR):
+        assert np.all(p >= 0.2 * pri / 1.2 - 1e-12)
+    assert adapt(q, PRIOR, np.zeros((0, 2)), cfg) == q  # a round without success
+    prior_cfg = ProposalConfig(kind="prior")
+    assert all(np.array_equal(a, b) for a, b in zip(adapt(q, PRIOR, np.array([[0, 2]]), prior_cfg), PRIOR))
+
+
+def test_round_proposals_chain() -> None:
+    cfg = ProposalConfig(smoothing=0.5, floor=0.2)
+    rounds = round_proposals(PRIOR, [np.array([[1, 2], [1, 0]]), np.array([[1, 2]])], cfg)
+    assert len(rounds) == 3
+    np.testing.assert_allclose(rounds[0][1], PRIOR[1])
+    np.testing.assert_allclose(rounds[2][1], [0.175, 0.075, 0.75])
+
+
+def test_sampling_from_the_prior_matches_the_catalogue() -> None:
+    """The prior proposal draws the plans the catalogue's own sampler draws (a prior run keeps its demos)."""
+    from prl.plb import load_plb
+
+    plb = load_plb()
+    for task in ("hammer", "tweeze"):
+        for seed in range(5):
+            a = plb.sample_plan(task, np.random.default_rng(seed))
+            b = sample_plan(plb.prior(task), np.random.default_rng(seed))
+            assert a.tolist() == b.tolist()
+
+
+def test_log_prob_and_weights_by_hand() -> None:
+    assert log_prob(PRIOR, [1, 2]) == pytest.approx(np.log(0.5 * 0.5))
+    assert log_prob((np.array([1.0, 0.0]),), [1]) == -np.inf
+    w = importance_weights([np.log(0.2), np.log(0.1)], [np.log(0.1), np.log(0.2)])  # ratios 2 and 0.5 -> mean 1.25
+    np.testing.assert_allclose(w, [2 / 1.25, 0.5 / 1.25])
+    assert effective_sample_size([1, 1, 1, 1]) == pytest.approx(4.0)
+    assert effective_sample_size([1, 0, 0, 0]) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="-inf or nan"):
+        importance_weights([0.0, -np.inf], [0.0, 0.0])
+
+
+def test_weights_restore_the_prior_on_a_bandit() -> None:
+    """A synthetic bandit whose success probability is known per choice: plans kept under the adaptive proposal,
+    weighted prior / proposal, have the per-dimension choice frequencies of plans kept under the prior
+    (p(c) P(success | c) / Z), though the unweighted kept plans do not."""
+    prior = (np.array([0.6, 0.3, 0.1]), np.array([0.5, 0.5]))
+    p_success = (np.array([0.05, 0.2, 0.9]), np.array([0.3, 0.6]))  # success needs both dims to "pass"
+    want0 = prior[0] * p_success[0] / np.sum(prior[0] * p_success[0])
+    want1 = prior[1] * p_success[1] / np.sum(prior[1] * p_success[1])
+    cfg = ProposalConfig(smoothing=0.7, floor=0.2)
+    rng = np.random.default_rng(0)
+    q = tuple(np.asarray(p) for p in prior)
+    kept, prior_lp, prop_lp = [], [], []
+    for _ in range(20):
+        successes = []
+        for _ in range(2000):
+            plan = sample_plan(q, rng)
+            if rng.random() < p_success[0][plan[0]] * p_success[1][plan[1]]:
+                successes.append(plan)
+                kept.append(plan)
+                prior_lp.append(log_prob(prior, plan))
+                prop_lp.append(log_prob(q, plan))
+        q = adapt(q, prior, np.array(successes).reshape(-1, 2), cfg)
+    kept = np.array(kept)
+    raw = weighted_choice_freqs(kept, (3, 2))
+    weighted = weighted_choice_freqs(kept, (3, 2), importance_weights(prior_lp, prop_lp))
+    np.testing.assert_allclose(weighted[0], want0, atol=0.03)
+    np.testing.assert_allclose(weighted[1], want1, atol=0.03)
+    assert abs(raw[0][2] - want0[2]) > 0.1  # the proposal moved onto choice 2: unweighted, it is over-represented
+
+
+def test_bad_settings_are_clear_errors() -> None:
+    with pytest.raises(ValueError, match="unknown proposal 'cem'; known: prior, adaptive"):
+        ProposalConfig(kind="cem")
+    with pytest.raises(ValueError, match="round_attempts must be an integer >= 1, got 0"):
+        ProposalConfig(round_attempts=0)
+    with pytest.raises(ValueError, match="floor must be a number in \\(0, 1\\), got 'x'"):
+        ProposalConfig(floor="x")
+
+
+def test_round_table_by_hand() -> None:
+    rows = [{"round": 0, "plan": [0, 1], "success": True, "prior_logp": 0.0, "proposal_logp": 0.0},
+            {"round": 0, "plan": [1, 1], "success": False, "prior_logp": 0.0, "proposal_logp": 0.0},
+            {"round": 1, "plan": [0, 1], "success": True, "prior_logp": np.log(0.5), "proposal_logp": np.log(0.25)},
+            {"round": 1, "plan": [1, 0], "success": True, "prior_logp": np.log(0.5), "proposal_logp": np.log(0.5)}]
+    table = round_table(rows, (2, 2))
+    assert [(t["round"], t["attempts"], t["successes"], t["kept"], t["distinct_plans"]) for t in table] == \
+        [(0, 2, 1, 1, 1), (1, 2, 2, 3, 2)]
+    assert table[0]["yield"] == 0.5 and table[1]["yield"] == 1.0
+    # round 1's kept weights 1, 2, 1 -> ESS 16 / 6
+    assert table[1]["ess"] == pytest.approx(16 / 6)
+    # dim 0 among kept [0, 0, 1]: entropy -(2/3 ln 2/3 + 1/3 ln 1/3)
+    assert table[1]["entropy"][0] == pytest.approx(-(2 / 3 * np.log(2 / 3) + 1 / 3 * np.log(1 / 3)), abs=1e-4)
+
+
+def test_consumers_weight_the_demos() -> None:
+    """The RN's cross-entropy and Fig 7's means take the demos' weights: weight 0 drops a sample, and the means
+    are computed by hand."""
+    import torch
+
+    from prl.rn import RNConfig, rn_loss
+    from prl.rn_decode import key_dimensions
+
+    cfg = RNConfig(dims=(2, 3))
+    logits = [torch.tensor([[2.0, 0.0], [0.0, 1.0]]), torch.tensor([[0.0, 1.0, 2.0], [1.0, 0.0, 0.0]])]
+    y = torch.tensor([[0, 2], [1, 0]])
+    both = rn_loss(logits, y, cfg)["ce"]
+    first = rn_loss([lg[:1] for lg in logits], y[:1], cfg)["ce"]
+    assert float(rn_loss(logits, y, cfg, torch.tensor([1.0, 0.0]))["ce"]) == pytest.approx(float(first))
+    assert float(rn_loss(logits, y, cfg, torch.tensor([1.0, 1.0]))["ce"]) == pytest.approx(float(both))
+    probs = [np.array([[0.9, 0.1], [0.3, 0.7]])]
+    s = key_dimensions(probs, weights=[3.0, 1.0])[0]
+    np.testing.assert_allclose(s.mean_probs, [(3 * 0.9 + 0.3) / 4, (3 * 0.1 + 0.7) / 4])
+    assert s.mean_max_prob == pytest.approx((3 * 0.9 + 0.7) / 4)
+
+
+def test_demo_weights_per_task() -> None:
+    """Weights are prior / proposal, mean 1 within each task; episodes without log-probabilities weigh 1."""
+    from prl.features import demo_weights
+
+    scenes = [{"task": "hammer", "prior_logp": np.log(0.2), "proposal_logp": np.log(0.1)},
+              {"task": "hammer", "prior_logp": np.log(0.1), "proposal_logp": np.log(0.2)},
+              {"task": "sweep"}, {"task": "sweep", "prior_logp": None, "proposal_logp": None}]
+    np.testing.assert_allclose(demo_weights(scenes), [2 / 1.25, 0.5 / 1.25, 1.0, 1.0])
+
+
+def test_a_bad_proposal_flag_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    from flows.full_pipeline import main
+    from prl.config import ConfigError, make_config
+
+    assert main(["--proposal", "cem"]) == 2
+    assert "unknown proposal 'cem'; known: prior, adaptive" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="proposal floor must be a number in \\(0, 1\\), got 1.5"):
+        make_config("quick", proposal_floor=1.5)
+    assert make_config("paper").proposal_config() == ProposalConfig()  # adaptive by default in both profiles
+    assert make_config("quick", proposal="prior").proposal_config().kind == "prior"
