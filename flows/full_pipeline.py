@@ -113,7 +113,7 @@ def run_summary(cfg: PipelineConfig, version: str, run_id: str, experiment_id: s
         markdown_table(rows),
         "",
         "Tables of this run: " + ", ".join(f"`{k}`" for k in [f"trial-rates-{t}" for t in cfg.tasks]
-                                           + ["synthesis-yield", "label-agreement"]
+                                           + ["synthesis-yield", "synthesis-rounds", "label-agreement"]
                                            + (["rn-success"] if cfg.train_rn else [])
                                            + (["ln-success"] if cfg.train_rn and cfg.train_ln else [])),
     ])

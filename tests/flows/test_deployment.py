@@ -97,7 +97,8 @@ def test_quick_pipeline_deployment_runs_on_a_prefect_server(tmp_path: Path) -> N
     children = set(runs[runs["tags.mlflow.parentRunId"].notna()]["tags.mlflow.runName"])
     assert children == {"assets", "trials-hammer", "synthesis", "labels", "export"}
     assert len(list((tmp_path / "out" / "synthesis").rglob("ep*.npz"))) == 1
-    assert set(artifacts) == {"trial-rates-hammer", "synthesis-yield", "label-agreement", "pipeline-summary"}
+    assert set(artifacts) == {"trial-rates-hammer", "synthesis-yield", "synthesis-rounds", "label-agreement",
+                              "pipeline-summary"}
     assert all(artifacts[k]["type"] == "table" for k in set(artifacts) - {"pipeline-summary"})
     trial_rates = json.loads(artifacts["trial-rates-hammer"]["data"])
     assert [r["plan kind"] for r in trial_rates] == ["expert", "prior", "uniform"]

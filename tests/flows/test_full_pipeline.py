@@ -143,11 +143,17 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     # the run's keyed artifacts, as the Prefect UI's Artifacts page lists them
     artifacts = dict(line.split(" ", 1) for line in graph.stdout.splitlines() if line.startswith("artifact "))
     tables = json.loads(artifacts["artifact"])
-    assert set(tables) == {"trial-rates-hammer", "trial-rates-sweep", "synthesis-yield", "label-agreement",
-                           "rn-success", "ln-success", "pipeline-summary"}, sorted(tables)
+    assert set(tables) == {"trial-rates-hammer", "trial-rates-sweep", "synthesis-yield", "synthesis-rounds",
+                           "label-agreement", "rn-success", "ln-success", "pipeline-summary"}, sorted(tables)
     assert [row["plan kind"] for row in tables["trial-rates-hammer"]] == ["expert", "prior", "uniform"]
     assert tables["trial-rates-hammer"][0]["successes"] == "2/2" and tables["trial-rates-hammer"][0]["95% CI"]
     assert {row["task"]: row["demos kept"] for row in tables["synthesis-yield"]} == {"hammer": 3, "sweep": 3}
+    # the adaptive proposal's record: one row per task and round, the rounds' attempts adding up to the yield table's
+    rounds = tables["synthesis-rounds"]
+    for row in tables["synthesis-yield"]:
+        mine = [r for r in rounds if r["task"] == row["task"]]
+        assert [r["round"] for r in mine] == list(range(len(mine))) and mine[-1]["demos kept"] == 3
+        assert sum(r["attempts"] for r in mine) == row["attempts"]
     assert [row["dimension"][:2] for row in tables["label-agreement"]] == ["a0", "a1", "a2", "a3", "a4", "a5"]
     assert len(tables["rn-success"]) == 2 * 2 * 5  # tasks x splits x (3 decodings + 2 baselines)
     assert {row["task"] for row in tables["ln-success"]} == {"hammer", "sweep"}
