@@ -5,8 +5,8 @@ a plan drawn from generators seeded by ``(run seed, task, k, j)`` only, so the r
 depend on how many workers run the shards, nor on the order they run in. A shard stops when it
 has its share of successes (or ``max_attempts`` attempts).
 
-Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal, which
-changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
+Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal (mixed with the
+prior, its defensive share), which changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
 every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
 rounds < r of all the task's shards, and round r + 1 starts when round r has ended everywhere. A prior run
 is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
@@ -52,7 +52,15 @@ from envs.trials import error_text
 from prl.constants import EPISODE_FRAMES
 from prl.demo import from_episode, load_demo, save_demo
 from prl.plb import load_plb
-from prl.proposal import ProposalConfig, as_probs, log_prob, round_proposals, sample_plan
+from prl.proposal import (
+    ProposalConfig,
+    as_probs,
+    log_prob,
+    mixture_log_prob,
+    round_proposals,
+    sample_mixture,
+    sample_plan,
+)
 from prl.stages import FAULTS
 
 _log = logging.getLogger(__name__)
@@ -82,6 +90,9 @@ class ShardSpec:
     """The round these attempts belong to (recorded in each attempt's line)."""
     round_end: int | None = None
     """Stop before this attempt index (the end of the round; None: run until the shard is done)."""
+    defensive: float | None = None
+    """Draw each plan from the prior with this probability, else from ``proposal`` (the defensive mixture of
+    ``prl.proposal``; None: from ``proposal`` alone)."""
 
     def __post_init__(self) -> None:
         if self.n_success < 0:
@@ -212,17 +223,18 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 plan = [int(v) for v in demo.plan]
-                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec.round, probs, prior, plan),
+                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan),
                        "success": True, "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
                     env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)
                 rng = np.random.default_rng(plan_seed)
-                plan = sample_plan(probs, rng)
+                plan = sample_plan(probs, rng) if spec.defensive is None else \
+                    sample_mixture(prior, probs, spec.defensive, rng)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
                 row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
-                       **_logps(spec.round, probs, prior, plan)}
+                       **_logps(spec, probs, prior, plan)}
                 try:
                     result = executor.run(plan, seed=scene_seed)
                     if result.success:
@@ -256,8 +268,10 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     return replace(shard_result(spec), seconds=time.perf_counter() - t0)
 
 
-def _logps(round_index: int, probs: Any, prior: Any, plan: Any) -> dict[str, Any]:
-    return {"round": int(round_index), "proposal_logp": log_prob(probs, plan), "prior_logp": log_prob(prior, plan)}
+def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any) -> dict[str, Any]:
+    """The attempt's round and its plan's log-probabilities under the distribution that drew it and the prior."""
+    drew = log_prob(probs, plan) if spec.defensive is None else mixture_log_prob(prior, probs, spec.defensive, plan)
+    return {"round": int(spec.round), "proposal_logp": drew, "prior_logp": log_prob(prior, plan)}
 
 
 def shard_result(spec: ShardSpec) -> ShardResult:
@@ -292,7 +306,7 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
                         for k in range(r)]
             proposals[s.task] = round_proposals(plb.prior(s.task), by_round, cfg)[r]
         out.append(replace(s, proposal=tuple(tuple(float(v) for v in p) for p in proposals[s.task]), round=r,
-                           round_end=(r + 1) * cfg.round_attempts))
+                           round_end=(r + 1) * cfg.round_attempts, defensive=cfg.defensive))
     return r, out
 
 

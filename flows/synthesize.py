@@ -198,7 +198,8 @@ def synthesis_dir(cfg: PipelineConfig) -> Path:
     """Where a run's demos live; keyed on what fixes the attempts (the proposal's settings too), so a re-run
     resumes there."""
     p = cfg.proposal_config()
-    how = "prior" if p.kind == "prior" else f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}"
+    how = "prior" if p.kind == "prior" else \
+        f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}-d{p.defensive:g}"
     return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}"
 
 

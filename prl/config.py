@@ -170,6 +170,8 @@ class PipelineConfig:
     """Weight of a round's success frequencies in the adaptive proposal's update."""
     proposal_floor: float = ProposalConfig.floor
     """Every choice keeps at least this fraction of its prior probability in the adaptive proposal."""
+    proposal_defensive: float = ProposalConfig.defensive
+    """Share of the adaptive rounds' plans drawn from the prior (every demo's weight is at most 1 / this)."""
     workers: int = 2
     """Dask worker processes of the local cluster."""
     dask_address: str | None = None
@@ -249,7 +251,8 @@ class PipelineConfig:
     def proposal_config(self) -> ProposalConfig:
         """Synthesis's proposal settings (``prl.proposal``)."""
         return ProposalConfig(kind=self.proposal, round_attempts=self.round_attempts,
-                              smoothing=self.proposal_smoothing, floor=self.proposal_floor)
+                              smoothing=self.proposal_smoothing, floor=self.proposal_floor,
+                              defensive=self.proposal_defensive)
 
     def video_spec(self) -> VideoSpec:
         """The dataset video's settings (also when ``video`` is off: they are checked either way)."""

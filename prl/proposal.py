@@ -9,12 +9,16 @@ rounds each dimension moves towards the frequencies of its choices among the rou
     q_d <- smoothing * freq_d(successes of the round) + (1 - smoothing) * q_d,   q_d <- max(q_d, floor * p_d), renormalised
 
 starting from q = p. The floor keeps every choice the prior allows at a fixed fraction of its prior probability,
-so no choice is ever dropped and every kept plan has a bounded weight. The proposal of round r depends only on
+so no choice is ever dropped. Plans are drawn from the defensive mixture ``m = defensive * p + (1 - defensive) * q``
+(each plan from the prior with probability ``defensive``, else from q), so that every kept plan's weight
+``p / m`` is at most ``1 / defensive``: the per-dimension floor alone bounds a weight only by
+((1 + floor) / floor) ** 6, and on the tweeze one demo of 2,000 came to weigh 224x the mean (an effective sample
+size of 60; docs/speed.md). The proposal of round r depends only on
 the attempts of rounds < r, which are themselves fixed by the run seed: the result does not depend on the
 number of workers, nor on which shard finished first.
 
-A plan drawn from q and kept is a sample of q(plan) P(success | plan) (up to a constant); its importance weight
-``w = p(plan) / q(plan)`` makes the weighted kept plans a sample of p(plan) P(success | plan), the distribution
+A plan drawn from m and kept is a sample of m(plan) P(success | plan) (up to a constant); its importance weight
+``w = p(plan) / m(plan)`` makes the weighted kept plans a sample of p(plan) P(success | plan), the distribution
 a prior-only run keeps (self-normalised: only ratios of weights matter). Each attempt records
 ``proposal_logp`` and ``prior_logp``; whatever reads the demos as "successful plans under the prior" weights
 by ``importance_weights`` (the RN's loss and Fig 7, the LN's pre-training).
@@ -47,6 +51,8 @@ class ProposalConfig:
     """Weight of the round's success frequencies in the update (1: jump to them; 0: never move)."""
     floor: float = 0.2
     """Every choice keeps at least ``floor`` x its prior probability (before renormalising)."""
+    defensive: float = 0.2
+    """Share of plans drawn from the prior in the adaptive rounds (the defensive mixture: weights <= 1 / defensive)."""
 
     def __post_init__(self) -> None:
         if self.kind not in PROPOSALS:
@@ -57,6 +63,8 @@ class ProposalConfig:
             raise ValueError(f"proposal smoothing must be a number in [0, 1], got {self.smoothing!r}")
         if not _number(self.floor) or not 0.0 < self.floor < 1.0:
             raise ValueError(f"proposal floor must be a number in (0, 1), got {self.floor!r}")
+        if not _number(self.defensive) or not 0.0 < self.defensive <= 1.0:
+            raise ValueError(f"proposal defensive share must be a number in (0, 1], got {self.defensive!r}")
 
 
 def _number(value: object) -> bool:
@@ -83,6 +91,29 @@ def sample_plan(probs: Sequence[np.ndarray], rng: np.random.Generator) -> np.nda
     """One plan, each dimension drawn independently (the same draws as ``PhysicalLawsBank.sample_plan`` when
     ``probs`` is the task's prior: a prior-only run keeps its plans)."""
     return np.array([rng.choice(len(p), p=p) for p in probs], dtype=np.int64)
+
+
+def sample_mixture(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
+                   rng: np.random.Generator) -> np.ndarray:
+    """One plan of the defensive mixture: from ``prior`` with probability ``defensive``, else from ``probs``. When
+    ``probs`` is the prior (round 0) the plan is drawn as a prior-only run draws it (no coin is tossed), so round 0
+    of an adaptive run attempts the very plans of a prior run."""
+    if _same(prior, probs):
+        return sample_plan(prior, rng)
+    return sample_plan(prior if rng.random() < defensive else probs, rng)
+
+
+def _same(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> bool:
+    return len(a) == len(b) and all(np.array_equal(p, q) for p, q in zip(a, b))
+
+
+def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
+                     plan: Sequence[int]) -> float:
+    """log of ``defensive * prior(plan) + (1 - defensive) * probs(plan)``."""
+    a, b = log_prob(prior, plan), log_prob(probs, plan)
+    if defensive >= 1.0 or _same(prior, probs):  # round 0: exactly the prior's
+        return a
+    return float(np.logaddexp(np.log(defensive) + a, np.log1p(-defensive) + b))
 
 
 def adapt(current: Sequence[np.ndarray], prior: Sequence[np.ndarray], successes: np.ndarray,

@@ -49,6 +49,15 @@ synthesize_rounds([ShardSpec("hammer", 0, 3, 11, Path(sys.argv[1]))], ProposalCo
 """
 
 
+_CHILD_SHARD = """
+import sys
+from pathlib import Path
+import envs
+from envs.synthesis import ShardSpec, run_shard
+run_shard(ShardSpec("hammer", 0, 3, 11, Path(sys.argv[1])))
+"""
+
+
 def _rows(out: Path) -> list[dict]:
     return read_attempts(out / "hammer" / "shard000")
 
@@ -63,7 +72,7 @@ def test_killed_shard_resumes_without_loss_or_duplicates(tmp_path: Path) -> None
     assert clean.successes == 3 and len(clean.demo_paths) == 3
 
     out = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(out)], cwd=REPO, env=dict(os.environ),
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD_SHARD, str(out)], cwd=REPO, env=dict(os.environ),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
     shard = out / "hammer" / "shard000"
