@@ -36,6 +36,7 @@ from prl.ln_summary import (
     _require,
     _strings,
     compact,
+    read_json,
     reuse_decision,
     summary_bytes,
 )
@@ -131,12 +132,7 @@ def read_reference(path: Path) -> dict[str, Any]:
     """The reference summary at ``path``, checked (``check_reference``); SummaryError naming the file when it is
     missing, not valid JSON or malformed."""
     path = Path(path)
-    try:
-        ref = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise SummaryError(f"{str(path)!r}: no such reference file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SummaryError(f"{str(path)!r}: not valid JSON ({exc})") from None
+    ref = read_json(path, "reference")
     check_reference(ref, path)
     return ref
 

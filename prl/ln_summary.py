@@ -181,14 +181,19 @@ def read_summary(path: Path) -> dict[str, Any]:
     """The summary at ``path``, checked (``check_summary``); SummaryError naming the file when it is not valid
     JSON or malformed."""
     path = Path(path)
-    try:
-        summary = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise SummaryError(f"{str(path)!r}: no such summary file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SummaryError(f"{str(path)!r}: not valid JSON ({exc})") from None
+    summary = read_json(path, "summary")
     check_summary(summary, path)
     return summary
+
+
+def read_json(path: Path, what: str) -> Any:
+    """The JSON value in ``path``; SummaryError naming the file (a ``what`` file) when it is missing or not JSON."""
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise SummaryError(f"{str(path)!r}: no such {what} file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SummaryError(f"{str(path)!r}: not valid JSON ({exc})") from None
 
 
 def read_summaries(directory: Path) -> dict[str, dict[str, Any]]:
