@@ -12,9 +12,9 @@ min-max band (top: physics-guided vs joint control; bottom: demonstration steps)
 from the summaries of one or more sweeps' output directories.
 
 With ``--results-dir`` (the experiment: ``docs/results/ln``) each finished point also writes its committed summary
-there, and the points whose committed summary holds today's settings, code version and dataset count as done
-whatever the MLflow store holds (``flows.ln_results``: what invalidates one); ``python -m flows.report`` makes
-``docs/results.md`` from them.
+there, and the points whose committed summary holds today's settings (the dataset's recipe among them) and code
+version count as done whatever the MLflow store holds (``flows.ln_results``: what invalidates one);
+``python -m flows.report`` makes ``docs/results.md`` from them.
 """
 
 from __future__ import annotations
