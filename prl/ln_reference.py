@@ -29,16 +29,15 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from prl.atomic import write_atomic
 from prl.ln_summary import (
     REFERENCE_PREFIX,
     SummaryError,
     _require,
-    _strings,
     compact,
     read_json,
     reuse_decision,
     summary_bytes,
+    write_committed,
 )
 from prl.stats import wilson_interval
 
@@ -152,11 +151,7 @@ def write_reference(directory: Path, ref: Mapping[str, Any]) -> Path:
     data = json.loads(summary_bytes(ref))
     path = Path(directory) / reference_file_name(str(data.get("task")))
     check_reference(data, path)
-    absolute = [s for s in _strings(data) if s.startswith("/")]
-    if absolute:
-        raise SummaryError(f"{str(path)!r}: a committed reference must not hold a local absolute path, got "
-                           f"{absolute[0]!r}")
-    return write_atomic(path, summary_bytes(data))
+    return write_committed(path, data, "reference")
 
 
 def reference_reuse(existing: Mapping[str, Any] | None, expected: Mapping[str, Any]) -> tuple[bool, str]:

@@ -115,9 +115,15 @@ def write_summary(directory: Path, summary: Mapping[str, Any]) -> Path:
     data = json.loads(summary_bytes(summary))
     path = Path(directory) / summary_file_name(str(data.get("name")), int(data.get("timesteps", 0)))
     check_summary(data, path)
+    return write_committed(path, data, "summary")
+
+
+def write_committed(path: Path, data: Mapping[str, Any], what: str) -> Path:
+    """Write checked ``data`` atomically to ``path`` in the one byte form; SummaryError when a string value is a
+    local absolute path (a committed ``what`` must not carry one)."""
     absolute = [s for s in _strings(data) if s.startswith("/")]
     if absolute:
-        raise SummaryError(f"{str(path)!r}: a committed summary must not hold a local absolute path, got "
+        raise SummaryError(f"{str(path)!r}: a committed {what} must not hold a local absolute path, got "
                            f"{absolute[0]!r}")
     return write_atomic(path, summary_bytes(data))
 
