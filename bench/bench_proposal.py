@@ -27,9 +27,9 @@ from prl.proposal import entropies, importance_weights, round_table, weighted_ch
 
 
 def _rows(synthesis_dir: Path, task: str) -> list[dict]:
-    from envs.synthesis import read_attempts  # heavy: loads the simulator
+    from envs.synthesis import task_attempts  # heavy: loads the simulator
 
-    return [r for shard in sorted((synthesis_dir / task).glob("shard*")) for r in read_attempts(shard)]
+    return task_attempts(synthesis_dir, task)
 
 
 def task_record(rows: list[dict], sizes: tuple[int, ...]) -> dict:

@@ -330,7 +330,7 @@ class Episode:
             outcome["fail"] = True
             self.notes.append(reason)
             self.fault = "blowup"
-        if decided:  # the measures are those of the early end; the success is what the full episode would give
+        if decided:  # a failure, as in the full episode (bench/bench_decided.py); measures at the early end
             outcome["success"] = False
             outcome["decided"] = f"after {STAGES[ended]}: {decided}"
         success = bool(outcome.get("success", False)) and not blowup

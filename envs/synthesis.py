@@ -326,12 +326,17 @@ def synthesize_rounds(specs: Sequence[ShardSpec], cfg: ProposalConfig,
     return [shard_result(s) for s in specs]
 
 
+def task_attempts(out_dir: Path, task: str) -> list[dict]:
+    """Every finished attempt of ``task`` in a synthesis directory, shard by shard in shard order."""
+    return [r for d in sorted((Path(out_dir) / task).glob("shard*")) for r in read_attempts(d)]
+
+
 def yield_report(out_dir: Path, task: str, n_frames: int = EPISODE_FRAMES) -> dict[str, float]:
     """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised
     (``errors``), that the executor ended itself (``faults/<fault>``) and that ended early as decided failures
     (``decided``), and the plan-episode physics frames stepped per attempt (``n_frames`` each, but those ended
     early), from the attempt logs."""
-    rows = [r for d in sorted((Path(out_dir) / task).glob("shard*")) for r in read_attempts(d)]
+    rows = task_attempts(out_dir, task)
     report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
     report["yield"] = report["successes"] / report["attempts"] if rows else 0.0
     report["errors"] = float(sum("error" in r for r in rows))

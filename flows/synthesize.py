@@ -174,14 +174,14 @@ def _run(specs: list[ShardSpec], workers: int, dask_address: str | None,
 def round_rows(demo_dir: Path, tasks: list[str], timing: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The per-task, per-round record (``prl.proposal.round_table``) with each round's compute run now: the
     shard-rounds' worker minutes and attempts per worker minute (rounds resumed from an earlier run have none)."""
-    from envs.synthesis import read_attempts  # heavy: loads the simulator
+    from envs.synthesis import task_attempts  # heavy: loads the simulator
     from prl.plb import load_plb
     from prl.proposal import round_table
 
     sizes = load_plb().sizes
     out = []
     for name in tasks:
-        rows = [r for d in sorted((demo_dir / name).glob("shard*")) for r in read_attempts(d)]
+        rows = task_attempts(demo_dir, name)
         for entry in round_table(rows, sizes):
             run = [t for t in timing if t.get("round") == entry["round"]]
             worker_s = sum(res.seconds for t in run for res in t["results"] if res.task == name)
