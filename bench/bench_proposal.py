@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from prl.plb import load_plb
-from prl.proposal import entropies, importance_weights, round_table, weighted_choice_freqs
+from prl.proposal import entropies, round_table, weighted_choice_freqs
+from prl.stats import importance_weights
 
 
 def _rows(synthesis_dir: Path, task: str) -> list[dict]:

@@ -76,7 +76,7 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
         labels = labels_stage(synthesis, version)
         dataset = export_stage(cfg, synthesis, labels)
         if cfg.train_rn:
-            pointnet = pointnet_stage(cfg, assets, version)
+            pointnet = pointnet_stage(cfg, assets)
             features = features_stage(cfg, dataset, pointnet)
             rn = rn_train_stage(cfg, features, out_dir)
             rn_eval = rn_eval_stage(cfg, rn, cfg.tasks)

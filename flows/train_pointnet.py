@@ -15,6 +15,7 @@ from prefect.cache_policies import NO_CACHE
 from flows.check_assets import Assets
 from prl import tracking
 from prl.config import PipelineConfig
+from prl.version import source_version
 
 
 @dataclass(frozen=True)
@@ -30,12 +31,23 @@ def _key(*parts: Any) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
+POINTNET_SOURCES: tuple[str, ...] = ("prl/pointnet.py", "prl/shapes.py")
+"""The modules that decide a trained PointNet (its network, training and synthetic shapes)."""
+
+
+def pointnet_version() -> str:
+    """``prl.version.source_version`` of ``POINTNET_SOURCES``: the code part of a PointNet checkpoint's name. Only
+    these files enter it, so a change elsewhere (a task, the synthesis) keeps the checkpoint's name, and the LN
+    summaries that record that name stay valid (``flows.ln_results.point_settings``)."""
+    return source_version(*POINTNET_SOURCES)
+
+
 def train_or_reuse_pointnet(epochs: int, n_shapes: int, n_points: int, seed: int, code_version: str,
                             models_dir: Path) -> PointNet:
     """Train the PointNet encoder on synthetic shapes, or reuse the checkpoint of an identical earlier run.
 
-    The checkpoint's name is a key over the PointNet config and ``code_version``, so an unchanged
-    re-run loads it instead of training (``reused=True``).
+    The checkpoint's name is a key over the PointNet config and ``code_version`` (``pointnet_version()``), so an
+    unchanged re-run loads it instead of training (``reused=True``).
     """
     from prl.pointnet import PointNetConfig, save_pointnet, train_pointnet  # heavy: trimesh
 
@@ -51,7 +63,7 @@ def train_or_reuse_pointnet(epochs: int, n_shapes: int, n_points: int, seed: int
 
 
 @task(name="pointnet", cache_policy=NO_CACHE)
-def pointnet_stage(cfg: PipelineConfig, assets: Assets, code_version: str) -> PointNet:
+def pointnet_stage(cfg: PipelineConfig, assets: Assets) -> PointNet:
     """Train (or reuse) the PointNet of ``cfg`` into ``cfg.output_dir/models``; log its history per epoch."""
     import mlflow  # heavy: mlflow
 
@@ -59,7 +71,8 @@ def pointnet_stage(cfg: PipelineConfig, assets: Assets, code_version: str) -> Po
     models_dir.mkdir(parents=True, exist_ok=True)
     with tracking.child_run("pointnet", params={"epochs": cfg.pn_epochs, "shapes": cfg.pn_shapes,
                                                 "n_points": cfg.n_points, "plb_n_plans": assets.plb_n_plans}):
-        pn = train_or_reuse_pointnet(cfg.pn_epochs, cfg.pn_shapes, cfg.n_points, cfg.seed, code_version, models_dir)
+        pn = train_or_reuse_pointnet(cfg.pn_epochs, cfg.pn_shapes, cfg.n_points, cfg.seed, pointnet_version(),
+                                     models_dir)
         mlflow.log_params({"checkpoint": str(pn.path), "reused": pn.reused})
         for name, values in pn.history.items():
             for step, value in enumerate(values):

@@ -15,7 +15,7 @@ from flows.compute_features import Features
 from prl import tracking
 from prl.config import PipelineConfig
 from prl.plb import load_plb
-from prl.proposal import effective_sample_size
+from prl.stats import effective_sample_size
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import numpy as np
 
 from prl.demo import X_MANIP_DIM
 from prl.pointnet import PN_DIM
-from prl.proposal import importance_weights
+from prl.stats import importance_weights
 from prl.rn import FeatureLayout
 from prl.text_embed import TE_DIM, embed_texts
 

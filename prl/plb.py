@@ -259,10 +259,17 @@ class PhysicalLawsBank:
         raise PLBError(f"unknown dimension {name!r}; known: {', '.join(self.dim_names)}")
 
     def task(self, name: str) -> TaskSpec:
-        """The catalogue entry of task ``name``."""
+        """The catalogue entry of task ``name``. A variant of a task (``<task>_<variant>``, e.g. ``hammer_mixed``)
+        without an entry of its own reads its task's: same goal, texts and prior (so adding a variant edits no
+        catalogue entry, nor the committed LN results of the tasks, ``prl.version.outcome_files``)."""
         for t in self.tasks:
             if t.name == name:
                 return t
+        base, _, variant = str(name).partition("_")
+        if variant and base != name:
+            for t in self.tasks:
+                if t.name == base:
+                    return t
         raise PLBError(f"unknown task {name!r}; known: {', '.join(t.name for t in self.tasks)}")
 
     def prior(self, task: str) -> tuple[np.ndarray, ...]:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from prl import cem
-from prl.stats import wilson_interval
+from prl.stats import effective_sample_size, importance_weights, wilson_interval
 
 PROPOSALS: tuple[str, ...] = ("prior", "adaptive")
 """Proposal kinds: the task's fixed prior, or the cross-entropy method between rounds (module docstring)."""
@@ -52,7 +52,8 @@ class ProposalConfig:
     floor: float = 0.2
     """Every choice keeps at least ``floor`` x its prior probability (before renormalising)."""
     defensive: float = 0.2
-    """Share of plans drawn from the prior in the adaptive rounds (the defensive mixture: weights <= 1 / defensive)."""
+    """Share of plans drawn from the prior in the adaptive rounds (the defensive mixture: weights <= 1 / defensive);
+    0 draws every plan from the adapted proposal (no coin is tossed; weights are bounded by the floor alone)."""
 
     def __post_init__(self) -> None:
         if self.kind not in PROPOSALS:
@@ -63,8 +64,8 @@ class ProposalConfig:
             raise ValueError(f"proposal smoothing must be a number in [0, 1], got {self.smoothing!r}")
         if not _number(self.floor) or not 0.0 < self.floor < 1.0:
             raise ValueError(f"proposal floor must be a number in (0, 1), got {self.floor!r}")
-        if not _number(self.defensive) or not 0.0 < self.defensive <= 1.0:
-            raise ValueError(f"proposal defensive share must be a number in (0, 1], got {self.defensive!r}")
+        if not _number(self.defensive) or not 0.0 <= self.defensive <= 1.0:
+            raise ValueError(f"proposal defensive share must be a number in [0, 1], got {self.defensive!r}")
 
 
 def _number(value: object) -> bool:
@@ -97,9 +98,9 @@ def sample_mixture(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], def
                    rng: np.random.Generator) -> np.ndarray:
     """One plan of the defensive mixture: from ``prior`` with probability ``defensive``, else from ``probs``. When
     ``probs`` is the prior (round 0) the plan is drawn as a prior-only run draws it (no coin is tossed), so round 0
-    of an adaptive run attempts the very plans of a prior run."""
-    if _same(prior, probs):
-        return sample_plan(prior, rng)
+    of an adaptive run attempts the very plans of a prior run; with ``defensive`` 0 no coin is tossed either."""
+    if _same(prior, probs) or defensive <= 0.0:
+        return sample_plan(probs, rng)
     return sample_plan(prior if rng.random() < defensive else probs, rng)
 
 
@@ -113,6 +114,8 @@ def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], d
     a, b = log_prob(prior, plan), log_prob(probs, plan)
     if defensive >= 1.0 or _same(prior, probs):  # round 0: exactly the prior's
         return a
+    if defensive <= 0.0:
+        return b
     return float(np.logaddexp(np.log(defensive) + a, np.log1p(-defensive) + b))
 
 
@@ -136,26 +139,6 @@ def round_proposals(prior: Sequence[np.ndarray], successes_by_round: Sequence[np
     for plans in successes_by_round:
         out.append(adapt(out[-1], prior, plans, cfg))
     return out
-
-
-def importance_weights(prior_logp: Sequence[float], proposal_logp: Sequence[float]) -> np.ndarray:
-    """``p / q`` of each kept plan, scaled to mean 1 (self-normalised importance sampling; all 1 for a prior run)."""
-    a, b = np.asarray(prior_logp, dtype=np.float64), np.asarray(proposal_logp, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 1:
-        raise ValueError(f"need one prior and one proposal log-probability per plan, got shapes {a.shape}, {b.shape}")
-    if not len(a):
-        return a
-    if not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
-        raise ValueError("a kept plan has a log-probability of -inf or nan: the prior or the proposal excludes it")
-    log_w = a - b
-    w = np.exp(log_w - log_w.max())
-    return w / w.mean()
-
-
-def effective_sample_size(weights: Sequence[float]) -> float:
-    """Kish's effective sample size ``(sum w)^2 / sum w^2`` (n for equal weights)."""
-    w = np.asarray(weights, dtype=np.float64)
-    return float(w.sum() ** 2 / np.sum(w * w)) if len(w) else 0.0
 
 
 def weighted_choice_freqs(plans: np.ndarray, sizes: Sequence[int], weights: Sequence[float] | None = None) -> Probs:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+
+import numpy as np
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -29,3 +32,23 @@ def format_rate(successes: int, n: int) -> str:
     """``'44/50 = 0.88 (95% CI 0.76-0.94)'``: a success count with its rate and Wilson interval."""
     lo, hi = wilson_interval(successes, n)
     return f"{successes}/{n} = {successes / n:.2f} (95% CI {lo:.2f}-{hi:.2f})"
+
+
+def importance_weights(prior_logp: Sequence[float], proposal_logp: Sequence[float]) -> np.ndarray:
+    """``p / q`` of each kept plan, scaled to mean 1 (self-normalised importance sampling; all 1 for a prior run)."""
+    a, b = np.asarray(prior_logp, dtype=np.float64), np.asarray(proposal_logp, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"need one prior and one proposal log-probability per plan, got shapes {a.shape}, {b.shape}")
+    if not len(a):
+        return a
+    if not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
+        raise ValueError("a kept plan has a log-probability of -inf or nan: the prior or the proposal excludes it")
+    log_w = a - b
+    w = np.exp(log_w - log_w.max())
+    return w / w.mean()
+
+
+def effective_sample_size(weights: Sequence[float]) -> float:
+    """Kish's effective sample size ``(sum w)^2 / sum w^2`` (n for equal weights)."""
+    w = np.asarray(weights, dtype=np.float64)
+    return float(w.sum() ** 2 / np.sum(w * w)) if len(w) else 0.0

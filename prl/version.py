@@ -35,13 +35,13 @@ OUTCOME_SHARED_FILES: tuple[str, ...] = (
     "prl/__init__.py", "prl/ln.py", "prl/features.py", "prl/demo.py", "prl/pointnet.py", "prl/rn.py",
     "prl/text_embed.py", "prl/shapes.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py", "prl/labels.py",
     "prl/stages.py", "prl/atomic.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py",
-    "prl/proposal.py", "prl/cem.py", "prl/stats.py",  # the demonstrations' importance weights
+    "prl/stats.py",  # the demonstrations' importance weights
 )
 """Files that decide an LN point's outcome on every task, beside the task's own module and ``assets/``. Left out
 on purpose: ``prl/config.py`` (the LN's settings enter each summary's ``settings`` as values, so editing the
 pipeline's profiles does not invalidate results), ``flows/`` (orchestration and tracking; a change there to what
-a point computes bumps ``flows.ln_results.POINT_PROCEDURE``), other tasks' modules, the synthesis and the red team
-(they make the dataset, which the summaries' ``dataset_digest`` covers), docs and tests.
+a point computes bumps ``flows.ln_results.POINT_PROCEDURE``), other tasks' modules, the synthesis, its proposal and the red team
+(they make the dataset, which the summaries' ``dataset_digest`` and ``dataset`` recipe cover), docs and tests.
 ``tests/prl/test_version.py`` checks this list against the modules these files import."""
 
 OUTCOME_ASSET_SUFFIXES: frozenset[str] = frozenset({".py", ".yaml", ".urdf", ".srdf"})

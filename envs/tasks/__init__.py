@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gc
+import importlib
+import pkgutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -11,16 +13,32 @@ import gymnasium as gym
 import torch
 from mani_skill.utils.registration import REGISTERED_ENVS
 
-from envs.tasks import grasp_probe, hammer, sweep, tweeze, unscrew  # noqa: F401  (registers PRL-GraspProbe-v1 and the PRL tasks)
 from envs.tasks.base import DEFAULT_ENV_KWARGS, PRLTaskEnv, physics_sim_config
+from prl.constants import TASKS
 
-TASK_ENV_IDS: dict[str, str] = {
-    "hammer": "PRL-Hammer-v1",
-    "sweep": "PRL-Sweep-v1",
-    "unscrew": "PRL-Unscrew-v1",
-    "tweeze": "PRL-Tweeze-v1",
-}
-"""Short task name -> registered ManiSkill environment id."""
+
+def _discover_tasks() -> dict[str, str]:
+    """Import every module of this package (each registers its environments) and map the short name of every
+    pipeline task (``PRLTaskEnv.pipeline_task``) to its environment id: the paper's four first, in
+    ``prl.constants.TASKS`` order, then the others by name. A task is added by adding its module, so this file (one
+    of every task's ``prl.version.outcome_files``) does not change."""
+    for module in pkgutil.iter_modules(__path__):
+        importlib.import_module(f"{__name__}.{module.name}")
+    found: dict[str, str] = {}
+    for env_id, spec in REGISTERED_ENVS.items():
+        cls = spec.cls
+        if not (isinstance(cls, type) and issubclass(cls, PRLTaskEnv) and cls.pipeline_task and cls.task_name):
+            continue
+        if cls.task_name in found:
+            raise RuntimeError(f"task {cls.task_name!r} is registered twice: {found[cls.task_name]} and {env_id}")
+        found[cls.task_name] = env_id
+    order = [t for t in TASKS if t in found] + sorted(set(found) - set(TASKS))
+    return {t: found[t] for t in order}
+
+
+TASK_ENV_IDS: dict[str, str] = _discover_tasks()
+"""Short task name -> registered ManiSkill environment id ("hammer" -> "PRL-Hammer-v1", ...)."""
+
 
 def task_class(task: str) -> type[PRLTaskEnv]:
     """The environment class of ``task``; ``ValueError`` naming it when unknown."""

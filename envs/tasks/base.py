@@ -113,6 +113,8 @@ class PRLTaskEnv(BaseEnv):
 
     task_name: str = ""
     """Short task name used across the pipeline ("hammer", "sweep", ...)."""
+    pipeline_task: ClassVar[bool] = True
+    """Whether the pipeline lists this environment as a task (``envs.tasks.TASK_ENV_IDS``); False for probes."""
     measure_key: str = ""
     """Key of ``evaluate()`` holding the task's measured quantity (the paper's reward)."""
     expert_plan: tuple[int, ...] = ()

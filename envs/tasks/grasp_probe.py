@@ -68,6 +68,7 @@ class PRLGraspProbeEnv(PRLTaskEnv):
     """
 
     task_name = "grasp_probe"
+    pipeline_task = False
     measure_key = "lift_cm"
     expert_plan = PROBE_OBJECTS["handle"]["plan"]
     stages: ClassVar[StageSpec] = StageSpec(

@@ -78,3 +78,15 @@ def test_bad_watch_state_is_named(make_task_env) -> None:
     env = make_task_env("hammer")
     with pytest.raises(ValueError, match="unknown hammer watch state \\['nail'\\]"):
         env.set_watch_state({"nail": 1.0})
+
+
+def test_the_registry_lists_the_pipeline_tasks_from_their_modules() -> None:
+    """Every module of ``envs/tasks`` registers itself; the paper's four come first in their order, the grasp
+    probe (``pipeline_task = False``) is not a task, and an unknown name is an error naming it."""
+    from envs.tasks import TASK_ENV_IDS, task_class
+
+    assert list(TASK_ENV_IDS)[:4] == ["hammer", "sweep", "unscrew", "tweeze"]
+    assert TASK_ENV_IDS["unscrew"] == "PRL-Unscrew-v1" and "grasp_probe" not in TASK_ENV_IDS
+    assert all(task_class(t).task_name == t for t in TASK_ENV_IDS)
+    with pytest.raises(ValueError, match="unknown task 'grasp_probe'"):
+        task_class("grasp_probe")

@@ -334,3 +334,12 @@ def test_duplicate_choice(tmp_path, raw):
 def test_rs_dims_constant_matches_catalogue() -> None:
     """prl.constants.RS_DIMS follows the catalogue (Table II rows: motion 7, tool-object rot 6)."""
     assert load_plb().sizes == RS_DIMS == (7, 7, 6, 4, 7, 6)
+
+
+def test_a_task_variant_reads_its_tasks_entry() -> None:
+    plb = load_plb()
+    assert plb.task("hammer_mixed") is plb.task("hammer")
+    assert plb.texts("tweeze_wide") == plb.texts("tweeze")
+    for name in ("drill_mixed", "hammer_", "_hammer"):
+        with pytest.raises(PLBError, match=f"unknown task {name!r}"):
+            plb.task(name)

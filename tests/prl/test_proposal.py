@@ -8,14 +8,13 @@ import pytest
 from prl.proposal import (
     ProposalConfig,
     adapt,
-    effective_sample_size,
-    importance_weights,
     log_prob,
     round_proposals,
     round_table,
     sample_plan,
     weighted_choice_freqs,
 )
+from prl.stats import effective_sample_size, importance_weights
 
 PRIOR = (np.array([0.5, 0.5]), np.array([0.2, 0.3, 0.5]))
 
@@ -214,3 +213,26 @@ def test_round_0_of_the_mixture_draws_the_prior_runs_plans() -> None:
     for seed in range(5):
         assert sample_mixture(PRIOR, PRIOR, 0.2, np.random.default_rng(seed)).tolist() == \
             sample_plan(PRIOR, np.random.default_rng(seed)).tolist()
+
+
+def test_defensive_zero_draws_from_the_proposal_alone() -> None:
+    """With no prior share no coin is tossed: the plan and its log-probability are the adapted proposal's, so a
+    run with ``--proposal-defensive 0`` attempts the plans the adaptive proposal drew before the mixture existed."""
+    from prl.proposal import mixture_log_prob, sample_mixture
+
+    q = (np.array([0.25, 0.75]), np.array([0.35, 0.15, 0.5]))
+    for seed in range(5):
+        assert sample_mixture(PRIOR, q, 0.0, np.random.default_rng(seed)).tolist() == \
+            sample_plan(q, np.random.default_rng(seed)).tolist()
+    assert mixture_log_prob(PRIOR, q, 0.0, [1, 2]) == pytest.approx(np.log(0.75 * 0.5))
+    assert ProposalConfig(defensive=0.0).defensive == 0.0
+    with pytest.raises(ValueError, match="defensive share must be a number in \\[0, 1\\], got -0.1"):
+        ProposalConfig(defensive=-0.1)
+
+
+def test_the_synthesis_directory_names_the_defensive_share_unless_it_is_zero(tmp_path) -> None:
+    from flows.synthesize import synthesis_dir
+    from prl.config import make_config
+
+    names = [synthesis_dir(make_config(output_dir=str(tmp_path), proposal_defensive=d)).name for d in (0.2, 0.0)]
+    assert names == ["seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2", "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2"]
