@@ -288,10 +288,14 @@ MESH_BUILDERS: dict[str, tuple[MeshBuilder, MeshBuilder]] = {
 
 
 def scene_meshes(task: str, scene_params: Mapping[str, float]) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
-    """``(tool_mesh, object_mesh)`` of one scene of ``task`` from the env's ``scene_params``."""
-    if task not in MESH_BUILDERS:
+    """``(tool_mesh, object_mesh)`` of one scene of ``task`` from the env's ``scene_params``. A variant of a task
+    (``<task>_<variant>``, e.g. ``hammer_mixed``) without builders of its own uses its task's: its scenes are
+    built from the same parameters (a variant moves or resizes them; the poses are in x_manip)."""
+    base, _, variant = str(task).partition("_")
+    name = task if task in MESH_BUILDERS or not variant else base
+    if name not in MESH_BUILDERS:
         raise ValueError(f"no mesh builders for task {task!r}; known: {', '.join(sorted(MESH_BUILDERS))}")
-    tool_builder, object_builder = MESH_BUILDERS[task]
+    tool_builder, object_builder = MESH_BUILDERS[name]
     return tool_builder(scene_params), object_builder(scene_params)
 
 

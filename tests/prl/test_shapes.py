@@ -61,6 +61,10 @@ def test_scene_meshes_dispatches_and_rejects_unknown_task():
     np.testing.assert_allclose(obj.bounds, S.hammer_object_mesh(PARAMS).bounds)
     with pytest.raises(ValueError, match="'screwdriver'"):
         S.scene_meshes("screwdriver", PARAMS)
+    variant_tool, _ = S.scene_meshes("hammer_mixed", PARAMS)  # a variant without builders: its task's
+    np.testing.assert_allclose(variant_tool.bounds, tool.bounds)
+    with pytest.raises(ValueError, match="'screwdriver_mixed'"):
+        S.scene_meshes("screwdriver_mixed", PARAMS)
     with pytest.raises(ValueError, match="'head_radius'"):
         S.hammer_tool_mesh({k: v for k, v in PARAMS.items() if k != "head_radius"})
 
