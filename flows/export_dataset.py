@@ -18,7 +18,7 @@ from prl.export_schema import DEFAULT_FPS, ExportReport, VideoSpec
 
 #: Sources whose content decides the exported files (the export's cache key covers them).
 EXPORT_SOURCES: tuple[str, ...] = (
-    "prl/export.py", "prl/export_schema.py", "prl/demo.py", "prl/constants.py", "flows/export_dataset.py",
+    "prl/export.py", "prl/episode_stats.py", "prl/export_schema.py", "prl/demo.py", "prl/constants.py", "flows/export_dataset.py",
     "envs/video.py", "envs/scene_record.py", "envs/render_stages.py",
 )
 

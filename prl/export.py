@@ -27,6 +27,7 @@ import numpy as np
 
 from prl.dataset_files import check_destination, move_into_place, recover_stale, staging_path, tree_size
 from prl.demo import Demo, load_demo
+from prl.episode_stats import fast_episode_stats
 from prl.export_check import EpisodeCheck, validate_lerobot
 from prl.export_schema import (
     DEFAULT_FPS,
@@ -76,7 +77,8 @@ def export_lerobot(
     every camera is written as a video feature through lerobot (``use_videos=True``) with the first
     encoder of ``VIDEO_CODECS`` that this machine's PyAV has (:func:`video_encoder`; lerobot records
     the codec in ``meta/info.json``). ``fast_writes`` skips lerobot's per-frame image-embedding
-    pass, a no-op without image features that costs ~6 ms a frame (see :func:`_quiet_fast_writes`);
+    pass, a no-op without image features that costs ~6 ms a frame, and computes lerobot's
+    per-episode statistics in fewer numpy calls (``prl.episode_stats``; see :func:`_quiet_fast_writes`);
     the files are the same.
     ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
     export can be skipped with :func:`reusable_export`.
@@ -266,7 +268,7 @@ def _camera_frames(demo: Demo, video: VideoSpec, render_images: RenderImages, so
 def _quiet_fast_writes(fast: bool = True) -> Iterator[None]:
     """Within the block: no ``datasets`` progress bars, SVT-AV1's banner cut to errors
     (``SVT_LOG=1``, unless set) and libav's notes to warnings; with ``fast``, no per-frame image
-    embedding.
+    embedding and the per-episode statistics of ``prl.episode_stats.fast_episode_stats`` (the same numbers).
 
     lerobot 0.6's ``DatasetWriter._save_episode_data`` runs ``embed_images`` on every episode,
     a row-by-row ``datasets.map`` (~6 ms a frame) that changes nothing when no feature is an
@@ -292,8 +294,10 @@ def _quiet_fast_writes(fast: bool = True) -> Iterator[None]:
         if callable(getattr(dataset_writer, "embed_images", None)):
             patched = dataset_writer.embed_images
             dataset_writer.embed_images = lambda dataset: dataset
+    stats = fast_episode_stats() if fast else contextlib.nullcontext()
     try:
-        yield
+        with stats:
+            yield
     finally:
         if patched is not None:
             from lerobot.datasets import dataset_writer  # already loaded above: the same module

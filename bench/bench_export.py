@@ -1,0 +1,103 @@
+"""Benchmark: the LeRobot export (no video) with lerobot's own writes against ``fast_writes``, seconds per episode.
+
+Makes ``--demos`` demos of ``--task`` (its expert plan on scenes 0, 1, ...; not timed), or takes the ``ep*.npz`` of
+``--demo-dir``, then exports them side by side, alternating, ``--rounds`` times: ``fast_writes=False`` (lerobot's
+per-frame image embedding and per-episode statistics), ``fast_writes=True`` with lerobot's statistics code (no
+embedding: there is no image to embed) and ``fast_writes=True`` (statistics by ``prl.episode_stats``). Each export is the real one
+(``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
+whether the two datasets hold the same files: the same bytes, and for the parquet files the same table and metadata
+but for the fingerprint that ``datasets.map`` stamps (lerobot's embedding pass is one).
+``python -m bench.bench_export [--task hammer] [--demos 40] [--rounds 2] [--demo-dir DIR]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from bench.bench_export_video import _demos
+
+
+def dataset_files(root: Path) -> dict[str, object]:
+    """Every file of a dataset by its relative path: its bytes, or for a parquet file its table and schema
+    metadata without ``datasets``' fingerprint (lerobot's image-embedding pass, a ``datasets.map``, stamps one; the
+    fast path, which skips that pass, does not)."""
+    import pyarrow.parquet as pq  # heavy: pyarrow
+
+    out: dict[str, object] = {}
+    for p in sorted(root.rglob("*")):
+        if not p.is_file():
+            continue
+        if p.suffix != ".parquet":
+            out[str(p.relative_to(root))] = p.read_bytes()
+            continue
+        table = pq.read_table(p)
+        meta = dict(table.schema.metadata or {})
+        if b"huggingface" in meta:
+            hf = json.loads(meta[b"huggingface"])
+            hf.pop("fingerprint", None)
+            meta[b"huggingface"] = json.dumps(hf, sort_keys=True).encode()
+        out[str(p.relative_to(root))] = (table.replace_schema_metadata(None), meta)
+    return out
+
+
+def _same(a: object, b: object) -> bool:
+    if isinstance(a, tuple) and isinstance(b, tuple):
+        return a[0].equals(b[0]) and a[1] == b[1]
+    return a == b
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="hammer")
+    parser.add_argument("--demos", type=int, default=40, help="episodes per export")
+    parser.add_argument("--rounds", type=int, default=2, help="alternating rounds; medians are printed")
+    parser.add_argument("--demo-dir", default=None, help="export the first --demos ep*.npz of this directory")
+    args = parser.parse_args()
+
+    import prl.export  # heavy: lerobot, after the arguments are parsed
+    from prl.export import export_lerobot
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        if args.demo_dir:
+            paths = sorted(Path(args.demo_dir).glob("ep*.npz"))[:args.demos]
+            if not paths:
+                raise SystemExit(f"no ep*.npz demos in {args.demo_dir!r}")
+        else:
+            paths, _, _ = _demos(args.task, args.demos, out / "demos")
+        modes = ("lerobot's writes", "no image embedding", "fast_writes")
+        times: dict[str, list[float]] = {m: [] for m in modes}
+        files: dict[str, dict[str, object]] = {}
+        for r in range(args.rounds):
+            for mode in modes:
+                root = out / f"ds-{modes.index(mode)}-{r}"
+                # the middle mode is fast_writes with lerobot's own statistics: the statistics' share alone
+                stats = prl.export.fast_episode_stats
+                if mode == "no image embedding":
+                    prl.export.fast_episode_stats = contextlib.nullcontext
+                try:
+                    t0 = time.perf_counter()
+                    export_lerobot(paths, root, repo_id="prl/bench", fast_writes=mode != "lerobot's writes")
+                    times[mode].append((time.perf_counter() - t0) / len(paths))
+                finally:
+                    prl.export.fast_episode_stats = stats
+                files[mode] = dataset_files(root)
+        med = {m: statistics.median(times[m]) for m in modes}
+        print(f"{len(paths)} episodes, {args.rounds} rounds, median s per episode: "
+              + ", ".join(f"{m} {med[m]:.3f}" for m in modes))
+        print(f"ratios: lerobot's writes / fast_writes {med[modes[0]] / med[modes[2]]:.2f}x; "
+              f"lerobot's statistics / prl.episode_stats (both without embedding) {med[modes[1]] / med[modes[2]]:.2f}x")
+        for mode in modes[1:]:
+            differ = sorted(k for k in files[modes[0]].keys() | files[mode].keys()
+                            if not _same(files[modes[0]].get(k), files[mode].get(k)))
+            print(f"{mode}: same files as lerobot's writes: "
+                  + ("yes, all " + str(len(files[mode])) if not differ else "NO: " + ", ".join(differ)))
+
+if __name__ == "__main__":
+    main()
