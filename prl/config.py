@@ -23,6 +23,20 @@ class ConfigError(ValueError):
     """A configuration value is invalid; the message names it."""
 
 
+def task_variants(root: Path | None = None) -> tuple[str, ...]:
+    """The task variants ``<task>_<variant>`` (``hammer_mixed``, ...) of the paper's tasks (``TASKS``): each module
+    ``envs/tasks/<task>_<variant>.py`` under ``root`` (the repository), sorted. Read from the file names, so this
+    module stays free of the simulator (the module registers the variant's environment when ``envs.tasks`` loads)."""
+    tasks_dir = Path(REPO_ROOT if root is None else root) / "envs" / "tasks"
+    found = {path.stem for task in TASKS for path in tasks_dir.glob(f"{task}_*.py")}
+    return tuple(sorted(name for name in found if name.isidentifier() and name.partition("_")[2]))
+
+
+def known_tasks(root: Path | None = None) -> tuple[str, ...]:
+    """Every task a run may name: the paper's four (``TASKS``), then their variants (``task_variants``)."""
+    return TASKS + task_variants(root)
+
+
 PAPER_LN_DEMO_STEPS = 1280
 """The demonstration steps of the paper's LN (its ablation's reference point)."""
 
@@ -136,7 +150,9 @@ class PipelineConfig:
     profile: str = "quick"
     """Named preset: 'quick' (laptop minutes) or 'paper' (the paper's scale)."""
     tasks: tuple[str, ...] = TASKS
-    """Tasks to run, a subset of ``prl.constants.TASKS`` (the paper's four, each simulated in ``envs/tasks``)."""
+    """Tasks to run (default: the paper's four, ``prl.constants.TASKS``), each simulated in ``envs/tasks``: any of
+    those and of their variants ``<task>_<variant>`` with a module ``envs/tasks/<task>_<variant>.py``
+    (``hammer_mixed``, ...; ``known_tasks``)."""
     seed: int = 0
     """Run seed; every scene seed derives from it."""
     eval_scenes: int = 8
@@ -203,9 +219,10 @@ class PipelineConfig:
             raise ConfigError(f"unknown profile {self.profile!r}; known: {sorted(PROFILES)}")
         if not self.tasks:
             raise ConfigError("tasks is empty; give at least one of " + ", ".join(TASKS))
+        known = known_tasks()
         for task in self.tasks:
-            if task not in TASKS:
-                raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
+            if task not in known:
+                raise ConfigError(f"unknown task {task!r}; known tasks: {', '.join(known)}")
         for name in ("eval_scenes", "episode_frames", "demos_per_task", "n_shards", "workers", "pn_epochs",
                      "pn_shapes", "n_points", "rn_epochs", "rn_eval_scenes"):
             value = getattr(self, name)
@@ -285,7 +302,7 @@ class AblationConfig:
     repo_id: str | None = None
     """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
     tasks: tuple[str, ...] = ("hammer",)
-    """Tasks swept, each with demonstrations in the dataset."""
+    """Tasks swept, each with demonstrations in the dataset (the paper's four or their variants, ``known_tasks``)."""
     variants: tuple[str, ...] = LN_VARIANTS
     """LN variants swept: physics (actor+critic pre-training), bc, joint (joint control, no demonstrations)."""
     demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
@@ -317,7 +334,7 @@ class AblationConfig:
         for name in ("dataset_root", "pointnet_path"):
             if not isinstance(getattr(self, name), (str, Path)) or not str(getattr(self, name)):
                 raise ConfigError(f"{name} must be a path, got {getattr(self, name)!r}")
-        for name, known in (("tasks", TASKS), ("variants", LN_VARIANTS)):
+        for name, known in (("tasks", known_tasks()), ("variants", LN_VARIANTS)):
             values = getattr(self, name)
             if not values:
                 raise ConfigError(f"{name} is empty; give at least one of {', '.join(known)}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import subprocess
 from pathlib import Path
@@ -50,7 +51,7 @@ OUTCOME_ASSET_SUFFIXES: frozenset[str] = frozenset({".py", ".yaml", ".urdf", ".s
 
 def outcome_files(task: str) -> tuple[str, ...]:
     """The files (relative to the repository root, sorted) whose contents decide an LN point's outcome on
-    ``task``: ``envs/tasks/<task>.py``, ``OUTCOME_SHARED_FILES`` and ``assets/`` (``OUTCOME_ASSET_SUFFIXES``).
+    ``task``: ``envs/tasks/<task>.py`` and the task modules it imports (a variant's base task), ``OUTCOME_SHARED_FILES`` and ``assets/`` (``OUTCOME_ASSET_SUFFIXES``).
     An explicit list: a module added later (another task, a variant of one) changes no task's files until one of
     these imports it. FileNotFoundError naming a task without a module, or a listed file that is missing."""
     if not isinstance(task, str) or not task.isidentifier():
@@ -60,7 +61,24 @@ def outcome_files(task: str) -> tuple[str, ...]:
         raise FileNotFoundError(f"task {task!r} has no module {own!r} under {REPO_ROOT}")
     assets = [p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "assets").rglob("*")
               if p.is_file() and p.suffix in OUTCOME_ASSET_SUFFIXES]
-    return tuple(sorted({own, *OUTCOME_SHARED_FILES, *assets}))
+    return tuple(sorted({*_task_modules(own), *OUTCOME_SHARED_FILES, *assets}))
+
+
+def _task_modules(own: str) -> set[str]:
+    """``own`` (a task's module) and the task modules it imports, at any depth: a variant
+    (``envs/tasks/unscrew_mixed.py``) decides its outcomes with its base task's module and the mixin it imports."""
+    found, todo = set(), [own]
+    while todo:
+        rel = todo.pop()
+        if rel in found:
+            continue
+        found.add(rel)
+        for node in ast.walk(ast.parse((REPO_ROOT / rel).read_text(), filename=rel)):
+            if isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").startswith("envs.tasks."):
+                dep = node.module.replace(".", "/") + ".py"
+                if (REPO_ROOT / dep).is_file():
+                    todo.append(dep)
+    return found
 
 
 def outcome_version(task: str) -> str:

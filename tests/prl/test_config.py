@@ -58,6 +58,38 @@ def test_unknown_profile() -> None:
         make_config("huge")
 
 
+def test_task_variants_with_a_module_are_tasks(tmp_path: Path) -> None:
+    """``<task>_<variant>`` names a task when envs/tasks/<task>_<variant>.py exists (issue #26's mixed variants);
+    read from the file names, without the simulator; any other name is an error naming it and the known tasks."""
+    import subprocess
+    import sys
+
+    from prl.config import known_tasks, task_variants
+
+    assert "unscrew_mixed" in task_variants() and known_tasks()[:4] == ("hammer", "sweep", "unscrew", "tweeze")
+    assert make_config(tasks=["unscrew_mixed", "hammer"]).tasks == ("unscrew_mixed", "hammer")
+    assert make_config().tasks == ("hammer", "sweep", "unscrew", "tweeze")  # the default stays the paper's four
+    assert make_ablation_config("data", "pn.pt", tasks=["unscrew_mixed"]).tasks == ("unscrew_mixed",)
+    with pytest.raises(ConfigError, match=r"unknown task 'unscrew_twisted'; known tasks: hammer, sweep, unscrew, "
+                                          r"tweeze, .*unscrew_mixed"):
+        make_config(tasks=["unscrew", "unscrew_twisted"])
+    with pytest.raises(ConfigError, match="unknown task 'mixed' in tasks"):
+        make_ablation_config("data", "pn.pt", tasks=["mixed"])
+    # a variant is a module of a paper task's name: another module of envs/tasks is not a task
+    tasks_dir = tmp_path / "envs" / "tasks"
+    tasks_dir.mkdir(parents=True)
+    for name in ("hammer.py", "hammer_mixed.py", "sweep_wide.py", "base.py", "grasp_probe.py", "tweeze_.py",
+                 "hammer_mixed.txt"):
+        (tasks_dir / name).write_text("")
+    assert task_variants(tmp_path) == ("hammer_mixed", "sweep_wide")
+    assert known_tasks(tmp_path) == ("hammer", "sweep", "unscrew", "tweeze", "hammer_mixed", "sweep_wide")
+    # checking a config's tasks loads no simulator
+    code = ("import sys; from prl.config import make_config; make_config(tasks=['unscrew_mixed']); "
+            "print(sorted(m for m in ('sapien', 'mani_skill', 'torch', 'envs') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
 def test_unwritable_output_dir(tmp_path: Path) -> None:
     blocker = tmp_path / "a_file"
     blocker.write_text("x")

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from prl import version
+from prl.config import known_tasks
 from prl.constants import REPO_ROOT, TASKS
 from prl.version import OUTCOME_SHARED_FILES, outcome_files, outcome_version
 
@@ -48,6 +49,24 @@ def test_docs_flows_tests_and_a_new_task_module_change_nothing(tree: Path) -> No
     (tree / "envs/tasks/hammer_mixed.py").write_text("# a new task, registered nowhere yet\n")
     (tree / "docs/new.md").write_text("new\n")
     assert versions() == before
+
+
+def test_a_variant_takes_in_the_task_modules_it_imports(tree: Path) -> None:
+    """A variant's version covers its base task's module and the mixin it imports (at any depth); the base task's
+    version does not cover the variant."""
+    (tree / "envs/tasks/mixed.py").write_text("import numpy\n")
+    (tree / "envs/tasks/sweep_mixed.py").write_text(
+        "from envs.tasks.mixed import MixedFamilies\nfrom envs.tasks.sweep import PRLSweepEnv\n")
+    (tree / "envs/tasks/sweep.py").write_text("from envs.tasks.base import PRLTaskEnv\n")
+    assert {f for f in outcome_files("sweep_mixed") if f.startswith("envs/tasks/")} == {
+        "envs/tasks/__init__.py", "envs/tasks/base.py", "envs/tasks/mixed.py", "envs/tasks/sweep.py",
+        "envs/tasks/sweep_mixed.py"}
+    before, variant = versions(), outcome_version("sweep_mixed")
+    (tree / "envs/tasks/mixed.py").write_text("import numpy  # the family draw, changed\n")
+    assert outcome_version("sweep_mixed") != variant and versions() == before
+    variant = outcome_version("sweep_mixed")
+    (tree / "envs/tasks/sweep.py").write_text("from envs.tasks.base import PRLTaskEnv  # physics changed\n")
+    assert outcome_version("sweep_mixed") != variant
 
 
 @pytest.mark.parametrize("rel", ["envs/tasks/base.py", "envs/executor.py", "prl/ln.py", "assets/plb.yaml",
@@ -94,12 +113,12 @@ def _imports(rel: str) -> set[str]:
     return found
 
 
-@pytest.mark.parametrize("task", TASKS)
+@pytest.mark.parametrize("task", known_tasks())
 def test_the_list_holds_everything_its_modules_import(task: str) -> None:
     """Every project module the listed ones import, at any depth, is listed too, or left out on purpose (another
     task's module is never reached: the registry's import of the tasks is the one exception)."""
     listed = set(outcome_files(task))
-    others = {f"envs/tasks/{t}.py" for t in TASKS if t != task}
+    others = {f"envs/tasks/{t}.py" for t in known_tasks()} - listed
     unlisted, todo, seen = set(), [f for f in listed if f.endswith(".py")], set()
     while todo:
         rel = todo.pop()
