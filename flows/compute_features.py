@@ -35,7 +35,14 @@ def rn_features(dataset_root: Path, repo_id: str, pointnet_path: Path, n_points:
     x = episode_features(episodes, load_pointnet(pointnet_path), n_points)
     return {"x": x, "plan": episodes.plan, "label": episodes.label, "seeds": episodes.seeds,
             "tasks": list(episodes.tasks), "texts": list(episodes.texts), "outcomes": list(episodes.outcomes),
+            "families": scene_families(episodes.scene_params),
             "weights": episodes.weights if episodes.weights is not None else np.ones(len(episodes))}
+
+
+def scene_families(scene_params: list[dict[str, float]] | tuple[dict[str, float], ...]) -> list[int]:
+    """Each episode's scene family (a mixed variant's ``scene_params["family"]``), -1 for a task without families:
+    for the reports per family (Fig 7, accuracy); never an input of the RN."""
+    return [int(p["family"]) if "family" in p else -1 for p in scene_params]
 
 
 @task(name="features", cache_policy=NO_CACHE)

@@ -78,12 +78,15 @@ def rn_outcomes(rn_path: Path, pointnet_path: Path, task_name: str, seeds: list[
 def baseline_outcomes(task_name: str, seeds: list[int], n_frames: int, randomization: float,
                       prior_seed: int) -> dict[str, list]:
     """On each of ``seeds``' scenes execute the ``BASELINES``: a plan sampled from the task prior per scene
-    (``envs.trials.plan_set`` seeded ``prior_seed``) and the task's expert plan; the outcomes of each, by kind."""
-    from envs.trials import plan_set, run_trials  # heavy: loads the simulator
+    (``envs.trials.plan_set`` seeded ``prior_seed``) and the task's expert plan; on a mixed variant also the family
+    oracle and each family's expert (``envs.families.family_outcomes``); the outcomes of each, by kind."""
+    from envs.families import family_outcomes  # heavy: loads the simulator
+    from envs.trials import plan_set, run_trials
 
-    return {kind: run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds, n_frames=n_frames,
-                             randomization=randomization)
-            for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True)}
+    out = {kind: run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds, n_frames=n_frames,
+                            randomization=randomization)
+           for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True)}
+    return {**out, **family_outcomes(task_name, seeds, n_frames, randomization)[0]}
 
 
 @task(name="rn-eval", cache_policy=NO_CACHE)
@@ -112,11 +115,14 @@ def rn_eval_stage(cfg: PipelineConfig, rn: TrainedRN, tasks: tuple[str, ...]) ->
 
 def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]:
     """Log one evaluation's outcomes (``evaluate_in_sim``'s result) to the active MLflow run and print them;
-    return the success rate per plan kind."""
+    return the success rate per plan kind. On a mixed variant (an ``oracle`` kind is there) each kind's successes
+    per scene family are logged and printed too (``<task>/<split>/<kind>_family<k>_success_rate``)."""
     import mlflow  # heavy: mlflow
 
+    from envs.families import families_of_oracle, per_family
     from prl.stats import format_rate, wilson_interval
 
+    families = families_of_oracle(task, out["oracle"]) if "oracle" in out else None
     rates: dict[str, float] = {}
     for kind, outs in out.items():
         k, n = sum(bool(o.success) for o in outs), len(outs)
@@ -126,10 +132,17 @@ def log_rn_eval(task: str, split: str, out: dict[str, list]) -> dict[str, float]
                             f"{task}/{split}/{kind}_ci95_low": lo, f"{task}/{split}/{kind}_ci95_high": hi})
         errors = sum(bool(o.error) for o in outs)
         mlflow.log_metric(f"{task}/{split}/{kind}_errors", errors)
-        print(f"{task} ({split}) {kind:<11} {format_rate(k, n)}" + (f" ({errors} raised)" if errors else ""))
+        line = f"{task} ({split}) {kind:<11} {format_rate(k, n)}" + (f" ({errors} raised)" if errors else "")
+        if families is not None:
+            by_family = per_family(outs, families)
+            mlflow.log_metrics({f"{task}/{split}/{kind}_family{f}_success_rate": fk / fn
+                                for f, (fk, fn) in by_family.items()})
+            line += "; " + ", ".join(f"family {f}: {fk}/{fn}" for f, (fk, fn) in by_family.items())
+        print(line)
     mlflow.log_dict({kind: [{"seed": o.seed, "plan": list(o.plan), "success": o.success, "measure": o.measure,
                              "fault": o.fault, "error": o.error}
-                            for o in outs] for kind, outs in out.items()}, f"{task}_{split}_rn_eval.json")
+                            | ({} if families is None else {"family": families[i]})
+                            for i, o in enumerate(outs)] for kind, outs in out.items()}, f"{task}_{split}_rn_eval.json")
     return rates
 
 

@@ -60,12 +60,17 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         acc = dict(zip(plb.dim_names, (float(a) for a in per_dim_accuracy(model, x[val], y[val])), strict=True))
         mlflow.log_metrics({f"val_accuracy/{name}": a for name, a in acc.items()})
         print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in acc.items()))
-        tasks = np.array(data["tasks"])
-        present = list(dict.fromkeys(data["tasks"]))
-        probs_by_task = {t: predict_proba(model, x[val][tasks[val] == t]) for t in present if np.any(tasks[val] == t)}
+        groups = figure_groups(data["tasks"], data.get("families", [-1] * len(x)))
+        val_groups = {name: np.intersect1d(rows, val) for name, rows in groups.items()}
+        val_groups = {name: rows for name, rows in val_groups.items() if len(rows)}
+        for name, rows in val_groups.items():
+            if " family " in name:  # what a mixed variant's RN reads of each family
+                mlflow.log_metrics({f"val_accuracy/{name.replace(' ', '_')}/{dim}": float(a) for dim, a in zip(
+                    plb.dim_names, per_dim_accuracy(model, x[rows], y[rows]), strict=True)})
+        probs_by_task = {name: predict_proba(model, x[rows]) for name, rows in val_groups.items()}
         fig = plot_rn_probabilities(probs_by_task, plb.dim_names, [d.choices for d in plb.dims],
                                     out_dir / "rn_probabilities.png",
-                                    weights_by_task={t: weights[val][tasks[val] == t] for t in probs_by_task})
+                                    weights_by_task={name: weights[rows] for name, rows in val_groups.items()})
         mlflow.log_figure(fig, "rn_probabilities.png")
         model.plan_libraries = plan_libraries(y[train], [data["tasks"][i] for i in train])  # rn-eval's decodings
         model.plan_priors = {t: plb.prior(t) for t in model.plan_libraries}  # the catalogue prior synthesis samples
@@ -78,6 +83,21 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         # traced on up to 8 training rows (a batch of 1 would fix the batch size), checked on the held-out ones
         mlflow.log_metric("registered_reload_max_abs_diff", log_registered_rn(model, x[train][:8], x[val]))
     return TrainedRN(rn_path, features.pointnet_path, acc)
+
+
+def figure_groups(tasks: list[str], families: list[int]) -> dict[str, np.ndarray]:
+    """The rows of Fig 7 and their episodes (indices, ascending): one row per task in order of appearance, and a
+    mixed variant's families apart (``"<task> family <k>"``, family >= 0) under its own row of all its scenes."""
+    if len(tasks) != len(families):
+        raise ValueError(f"{len(tasks)} tasks but {len(families)} families")
+    task_arr, fam_arr = np.asarray(tasks), np.asarray(families, dtype=np.int64)
+    groups: dict[str, np.ndarray] = {}
+    for t in dict.fromkeys(tasks):
+        rows = np.flatnonzero(task_arr == t)
+        groups[t] = rows
+        for f in sorted({int(v) for v in fam_arr[rows] if v >= 0}):
+            groups[f"{t} family {f}"] = rows[fam_arr[rows] == f]
+    return groups
 
 
 def log_registered_rn(model: Any, x_example: np.ndarray, x_check: np.ndarray) -> float:

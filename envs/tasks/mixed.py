@@ -42,8 +42,8 @@ class MixedFamilies:
     @classmethod
     def check_families(cls) -> None:
         """``ValueError`` naming the bad value unless ``families`` has at least two entries,
-        ``family_expert_plans`` maps exactly the indices 0 .. len(families) - 1 to valid plans (``prl.plb``),
-        and ``expert_plan`` is family 0's plan."""
+        ``family_expert_plans`` maps exactly the indices 0 .. len(families) - 1 to valid plans (``prl.plb``), no two
+        the same, and ``expert_plan`` is family 0's plan."""
         name = cls.__name__
         families = cls.families
         if isinstance(families, (str, bytes)) or not isinstance(families, Sequence) or len(families) < 2:
@@ -66,6 +66,13 @@ class MixedFamilies:
                 plb.validate_plan(plan)
             except ValueError as exc:
                 raise ValueError(f"{name}.family_expert_plans[{family}] = {plan!r} is not a plan: {exc}") from None
+        seen: dict[tuple[int, ...], int] = {}
+        for family in sorted(plans):
+            plan = tuple(int(v) for v in plans[family])
+            if plan in seen:
+                raise ValueError(f"{name}.family_expert_plans: families {seen[plan]} and {family} have the same plan "
+                                 f"{plan!r}; families that one plan solves are one family")
+            seen[plan] = family
         if tuple(cls.expert_plan) != tuple(plans[0]):
             raise ValueError(f"{name}.expert_plan {tuple(cls.expert_plan)!r} must be family 0's plan "
                              f"{tuple(plans[0])!r}")

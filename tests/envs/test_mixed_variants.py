@@ -53,6 +53,8 @@ def test_the_interface_the_issue_asks_for() -> None:
     ({"family_expert_plans": {0: (0, 3, 2, 3, 5, 1), 1: (4, 3, 4)}}, r"family_expert_plans\[1\] = \(4, 3, 4\)"),
     ({"expert_plan": (4, 3, 4, 0, 5, 1)}, r"expert_plan \(4, 3, 4, 0, 5, 1\) must be family 0's plan"),
     ({"families": ()}, r"families must list at least two families, got \(\)"),
+    ({"family_expert_plans": {0: (0, 3, 2, 3, 5, 1), 1: (0, 3, 2, 3, 5, 1)}},
+     r"families 0 and 1 have the same plan \(0, 3, 2, 3, 5, 1\)"),
 ])
 def test_a_bad_family_table_is_named_before_any_scene_is_built(attrs: dict, match: str) -> None:
     bad = type("BadMixed", (_cls(),), dict(attrs))  # not registered: only the class's checks run

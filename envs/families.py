@@ -1,0 +1,177 @@
+"""The scene families of the mixed task variants (issue #26): the family oracle, outcomes per family, and whether one
+fixed plan could do what the RN and the LN do.
+
+A mixed variant (``envs/tasks/<task>_mixed.py``, ``envs.tasks.mixed.MixedFamilies``) draws each scene from one of
+several families that need different plans; ``scene_params["family"]`` says which, and ``family_expert_plans`` holds
+each family's hand-written plan. Here, as references (never as a policy's input):
+
+- ``oracle``: on each scene its own family's expert plan (read from the scene after reset, as a reference may);
+- ``family <k> expert``: family k's plan on every scene;
+- the best single fixed plan: the best of the families' experts and of the most frequent successful plans in the
+  variant's demos (the target of #26: <= 60%, so that a network must read x to do better).
+
+``python -m envs.families --task unscrew_mixed --scenes 50 [--dataset-root D --repo-id R] [--top 20]`` prints them
+on the pipeline's trial scenes with 95% Wilson intervals, per family.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prl.constants import EPISODE_FRAMES
+
+
+def family_plans(task: str) -> dict[int, tuple[int, ...]] | None:
+    """``task``'s family -> expert plan table, or None for a task without families; ``ValueError`` naming an
+    unknown task."""
+    from envs.tasks import task_class  # heavy: loads the simulator
+
+    cls = task_class(task)
+    plans = getattr(cls, "family_expert_plans", None)
+    return None if not plans else {int(k): tuple(int(v) for v in p) for k, p in plans.items()}
+
+
+def oracle_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
+                    randomization: float = 1.0) -> tuple[list[Any], list[int]]:
+    """The family oracle on ``seeds``' scenes: each scene's own family's expert plan. Returns the outcomes
+    (``envs.trials.TrialOutcome``) and each scene's family. ``ValueError`` for a task without families."""
+    from envs.trials import run_policy  # heavy: loads the simulator
+
+    plans = family_plans(task)
+    if plans is None:
+        raise ValueError(f"task {task!r} has no scene families (no family_expert_plans): no oracle")
+    families: list[int] = []
+
+    def oracle(i: int, env: Any, x_manip: np.ndarray) -> tuple[int, ...]:
+        family = int(env.scene_params["family"])
+        families.append(family)
+        return plans[family]
+
+    outcomes = run_policy(task, oracle, seeds, n_frames=n_frames, randomization=randomization,
+                          desc=f"{task} family oracle")
+    if len(families) != len(outcomes):  # a scene whose reset raised never asked the oracle
+        raise RuntimeError(f"{task}: {len(outcomes) - len(families)} of {len(outcomes)} scenes raised before the "
+                           f"oracle read their family")
+    return outcomes, families
+
+
+def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
+                    randomization: float = 1.0) -> tuple[dict[str, list[Any]], list[int]]:
+    """The oracle and every family's expert (``family <k> expert``) on ``seeds``' scenes, and each scene's
+    family; ``({}, [])`` for a task without families."""
+    from envs.trials import run_trials  # heavy: loads the simulator
+
+    plans = family_plans(task)
+    if plans is None:
+        return {}, []
+    oracle, families = oracle_outcomes(task, seeds, n_frames, randomization)
+    out = {"oracle": oracle}
+    for k, plan in plans.items():
+        out[f"family {k} expert"] = run_trials(task, [plan] * len(seeds), list(seeds), n_frames=n_frames,
+                                               randomization=randomization)
+    return out, families
+
+
+def families_of_oracle(task: str, oracle: Sequence[Any]) -> list[int]:
+    """Each scene's family, read back from the plan the oracle ran on it (the families' plans differ:
+    ``MixedFamilies.check_families``)."""
+    plans = family_plans(task)
+    if plans is None:
+        raise ValueError(f"task {task!r} has no scene families (no family_expert_plans)")
+    family_of = {plan: family for family, plan in plans.items()}
+    return [family_of[tuple(int(v) for v in o.plan)] for o in oracle]
+
+
+def per_family(outcomes: Sequence[Any], families: Sequence[int]) -> dict[int, tuple[int, int]]:
+    """``{family: (successes, scenes)}`` of ``outcomes`` (one per scene, in the order of ``families``)."""
+    if len(outcomes) != len(families):
+        raise ValueError(f"{len(outcomes)} outcomes but {len(families)} families")
+    table: dict[int, list[int]] = {}
+    for outcome, family in zip(outcomes, families, strict=True):
+        row = table.setdefault(int(family), [0, 0])
+        row[0] += bool(outcome.success)
+        row[1] += 1
+    return {f: (k, n) for f, (k, n) in sorted(table.items())}
+
+
+def frequent_plans(plans: Sequence[Sequence[int]], top: int) -> list[tuple[tuple[int, ...], int]]:
+    """The ``top`` most frequent plans of ``plans`` with their counts, most frequent first (ties: the plan that
+    appears first)."""
+    if top < 1:
+        raise ValueError(f"top must be >= 1, got {top}")
+    return Counter(tuple(int(v) for v in p) for p in plans).most_common(top)
+
+
+def family_line(name: str, outcomes: Sequence[Any], families: Sequence[int]) -> str:
+    """One printed row: overall successes with the Wilson interval, then per family."""
+    from prl.stats import format_rate
+
+    k = sum(bool(o.success) for o in outcomes)
+    parts = [f"{name:<28} {format_rate(k, len(outcomes))}"]
+    parts += [f"family {f}: {s}/{n}" for f, (s, n) in per_family(outcomes, families).items()]
+    return "; ".join(parts)
+
+
+def demo_plans(dataset_root: str, repo_id: str, task: str) -> list[tuple[int, ...]]:
+    """The commanded plans of ``task``'s episodes in an exported dataset (all succeeded in simulation)."""
+    from prl.features import read_episodes  # heavy: lerobot
+
+    episodes = read_episodes(dataset_root, repo_id)
+    return [tuple(int(v) for v in plan) for t, plan in zip(episodes.tasks, episodes.plan, strict=True) if t == task]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The family table of one mixed variant on the pipeline's trial scenes (see the module docstring)."""
+    parser = argparse.ArgumentParser(prog="python -m envs.families", description=__doc__.splitlines()[0])
+    parser.add_argument("--task", required=True, help="a mixed variant, e.g. unscrew_mixed")
+    parser.add_argument("--scenes", type=int, default=50, help="trial scenes (the pipeline's, run seed --seed)")
+    parser.add_argument("--seed", type=int, default=0, help="the run seed the trial scenes derive from")
+    parser.add_argument("--dataset-root", default=None, help="an exported dataset: its most frequent demo plans "
+                                                              "join the fixed plans")
+    parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: prl/<directory name>)")
+    parser.add_argument("--top", type=int, default=20, help="the most frequent demo plans tried")
+    args = parser.parse_args(argv)
+    if args.scenes < 1:
+        parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    if args.top < 1:
+        parser.error(f"--top must be >= 1, got {args.top}")
+    try:
+        plans = family_plans(args.task)
+    except ValueError as exc:
+        parser.error(str(exc))
+    if plans is None:
+        parser.error(f"task {args.task!r} has no scene families (no family_expert_plans)")
+    if args.dataset_root is not None and not (Path(args.dataset_root) / "meta" / "info.json").is_file():
+        parser.error(f"--dataset-root {args.dataset_root!r}: no exported dataset there (meta/info.json missing)")
+    from envs.trials import run_trials, trial_scene_seeds
+
+    seeds = trial_scene_seeds(args.seed, args.scenes)
+    out, families = family_outcomes(args.task, seeds)
+    print(f"{args.task} on {len(seeds)} trial scenes (families: {dict(sorted(Counter(families).items()))})")
+    for name, outs in out.items():
+        print(family_line(name, outs, families))
+    fixed = {f"family {k} expert": out[f"family {k} expert"] for k in plans}
+    if args.dataset_root is not None:
+        repo_id = args.repo_id or f"prl/{Path(args.dataset_root).name}"
+        frequent = frequent_plans(demo_plans(args.dataset_root, repo_id, args.task), args.top)
+        known = {tuple(p) for p in plans.values()}
+        for plan, count in frequent:
+            if plan in known:
+                continue
+            name = f"demo plan {list(plan)} (x{count})"
+            fixed[name] = run_trials(args.task, [plan] * len(seeds), seeds)
+            print(family_line(name, fixed[name], families), flush=True)
+    best = max(fixed, key=lambda name: sum(bool(o.success) for o in fixed[name]))
+    print(f"best single fixed plan of {len(fixed)}: {family_line(best, fixed[best], families)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

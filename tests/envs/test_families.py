@@ -1,0 +1,104 @@
+"""envs.families and the per-family reports of the RN (Fig 7's rows, its evaluation): hand-computed cases, the
+oracle on real scenes of unscrew_mixed, and bad input named."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+
+def _outcome(success: bool, plan: tuple[int, ...] = (0, 0, 0, 0, 0, 0)) -> SimpleNamespace:
+    return SimpleNamespace(success=success, plan=plan)
+
+
+def test_per_family_and_frequent_plans_by_hand() -> None:
+    from envs.families import frequent_plans, per_family
+
+    outs = [_outcome(s) for s in (True, False, True, True, False)]
+    assert per_family(outs, [1, 0, 0, 1, 1]) == {0: (1, 2), 1: (2, 3)}
+    with pytest.raises(ValueError, match="5 outcomes but 4 families"):
+        per_family(outs, [0, 0, 1, 1])
+    plans = [(1, 2), (3, 4), (1, 2), (5, 6), (3, 4), (1, 2)]
+    assert frequent_plans(plans, 2) == [((1, 2), 3), ((3, 4), 2)]
+    assert frequent_plans(plans, 9) == [((1, 2), 3), ((3, 4), 2), ((5, 6), 1)]
+    with pytest.raises(ValueError, match="top must be >= 1, got 0"):
+        frequent_plans(plans, 0)
+
+
+def test_families_are_read_back_from_the_oracles_plans() -> None:
+    from envs.families import families_of_oracle, family_plans
+
+    plans = family_plans("unscrew_mixed")
+    assert plans == {0: (0, 3, 2, 3, 5, 1), 1: (4, 3, 4, 0, 5, 1)}
+    assert family_plans("unscrew") is None
+    oracle = [_outcome(True, plans[1]), _outcome(False, plans[0]), _outcome(True, plans[1])]
+    assert families_of_oracle("unscrew_mixed", oracle) == [1, 0, 1]
+    with pytest.raises(ValueError, match="task 'hammer' has no scene families"):
+        families_of_oracle("hammer", oracle)
+    with pytest.raises(ValueError, match="unknown task 'hamer'"):
+        family_plans("hamer")
+
+
+def test_fig7_rows_put_a_mixed_variants_families_apart() -> None:
+    from flows.compute_features import scene_families
+    from flows.train_rn import figure_groups
+
+    assert scene_families([{"cap_radius": 0.02}, {"family": 1.0, "cap_radius": 0.03}, {"family": 0.0}]) == [-1, 1, 0]
+    groups = figure_groups(["hammer", "unscrew_mixed", "hammer", "unscrew_mixed", "unscrew_mixed"],
+                           [-1, 1, -1, 0, 1])
+    assert list(groups) == ["hammer", "unscrew_mixed", "unscrew_mixed family 0", "unscrew_mixed family 1"]
+    assert [g.tolist() for g in groups.values()] == [[0, 2], [1, 3, 4], [3], [1, 4]]
+    with pytest.raises(ValueError, match="3 tasks but 2 families"):
+        figure_groups(["a", "b", "c"], [0, 1])
+
+
+def test_the_rn_evaluation_reports_each_family(monkeypatch, capsys) -> None:
+    """log_rn_eval with an oracle kind: per-family successes of every kind, printed and logged, by hand."""
+    import mlflow
+
+    from flows.evaluate_rn import log_rn_eval
+
+    logged: dict[str, float] = {}
+    monkeypatch.setattr(mlflow, "log_metrics", lambda m, **kw: logged.update(m))
+    monkeypatch.setattr(mlflow, "log_metric", lambda k, v, **kw: logged.update({k: v}))
+    dicts = {}
+    monkeypatch.setattr(mlflow, "log_dict", lambda d, name: dicts.update({name: d}))
+    f0, f1 = (0, 3, 2, 3, 5, 1), (4, 3, 4, 0, 5, 1)
+    oracle = [_outcome(True, f0), _outcome(True, f1), _outcome(False, f1), _outcome(True, f0)]
+    for o, seed in zip(oracle, range(4), strict=True):
+        o.seed, o.measure, o.fault, o.error = seed, 1.0, "", ""
+    rn = [SimpleNamespace(success=s, plan=f0, seed=i, measure=0.0, fault="", error="")
+          for i, s in enumerate((True, False, False, True))]
+    rates = log_rn_eval("unscrew_mixed", "train_ranges", {"rn": rn, "oracle": oracle})
+    assert rates == {"rn": 0.5, "oracle": 0.75}
+    assert logged["unscrew_mixed/train_ranges/rn_family0_success_rate"] == 1.0  # scenes 0 and 3: both succeeded
+    assert logged["unscrew_mixed/train_ranges/rn_family1_success_rate"] == 0.0
+    assert logged["unscrew_mixed/train_ranges/oracle_family1_success_rate"] == 0.5
+    assert "family 0: 2/2, family 1: 0/2" in capsys.readouterr().out
+    assert [r["family"] for r in dicts["unscrew_mixed_train_ranges_rn_eval.json"]["rn"]] == [0, 1, 1, 0]
+
+
+@pytest.mark.sim
+def test_the_oracle_runs_each_scenes_own_family_plan() -> None:
+    from envs.families import oracle_outcomes
+
+    outcomes, families = oracle_outcomes("unscrew_mixed", [0, 1])
+    assert families == [0, 1]  # seed 0 a flask, seed 1 a wide lid (tests/envs/test_mixed_variants.py)
+    assert [o.plan for o in outcomes] == [(0, 3, 2, 3, 5, 1), (4, 3, 4, 0, 5, 1)]
+    assert all(o.success for o in outcomes)
+    with pytest.raises(ValueError, match="task 'unscrew' has no scene families"):
+        oracle_outcomes("unscrew", [0])
+
+
+def test_the_command_names_bad_input(capsys) -> None:
+    from envs.families import main
+
+    for argv, named in ((["--task", "unscrew"], "task 'unscrew' has no scene families"),
+                        (["--task", "hamer"], "unknown task 'hamer'"),
+                        (["--task", "unscrew_mixed", "--scenes", "0"], "--scenes must be >= 1, got 0"),
+                        (["--task", "unscrew_mixed", "--dataset-root", "/nonexistent/d"],
+                         "no exported dataset there")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2 and named in capsys.readouterr().err, argv
