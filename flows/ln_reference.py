@@ -21,12 +21,13 @@ from pathlib import Path
 from typing import Any
 
 from flows.evaluate_rn import PRIOR_SEED_OFFSET, baseline_outcomes, find_pointnet, rn_outcomes
-from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
+from prl.config import known_tasks
+from prl.constants import EPISODE_FRAMES, REPO_ROOT
 from prl.ln_reference import (
-    REFERENCE_KINDS,
     plan_result,
     read_reference,
     reference_file_name,
+    reference_kinds,
     reference_reuse,
     write_reference,
 )
@@ -85,15 +86,16 @@ def run_reference(record: dict[str, Any], seeds: list[int], rn_path: Path | None
     if rn_path is not None:
         out.update(rn_outcomes(rn_path, pointnet_path, task_name, seeds, settings["n_points"], settings["n_frames"],
                                1.0, ("rn",)))
-    plans = {kind: plan_result(out[kind]) for kind in REFERENCE_KINDS if kind in out}
+    plans = {kind: plan_result(out[kind]) for kind in reference_kinds(out)}
     return {**record, "plans": plans, "started": started, "finished": _now()}
 
 
 def check_arguments(tasks: list[str], eval_seed: int, eval_scenes: int, rn_path: Path | None) -> None:
     """ValueError naming an unknown task or a bad seed or count; FileNotFoundError naming a missing RN file."""
-    unknown = [t for t in tasks if t not in TASKS]
+    known = known_tasks()
+    unknown = [t for t in tasks if t not in known]
     if unknown or not tasks:
-        raise ValueError(f"unknown task(s) {unknown or tasks} in --tasks; known: {', '.join(TASKS)}")
+        raise ValueError(f"unknown task(s) {unknown or tasks} in --tasks; known: {', '.join(known)}")
     if eval_seed < 0:
         raise ValueError(f"--eval-seed must be >= 0, got {eval_seed}")
     if eval_scenes < 1:
@@ -105,7 +107,7 @@ def check_arguments(tasks: list[str], eval_seed: int, eval_scenes: int, rn_path:
 def cli_parser() -> argparse.ArgumentParser:
     """The command line (defaults: the sweep's evaluation scenes, the committed results directory)."""
     parser = argparse.ArgumentParser(prog="python -m flows.ln_reference", description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", required=True, help=f"comma-separated tasks, of {','.join(TASKS)}")
+    parser.add_argument("--tasks", required=True, help=f"comma-separated tasks, of {','.join(known_tasks())}")
     parser.add_argument("--eval-seed", type=int, default=0, help="the sweep's --eval-seed (the scenes' run seed)")
     parser.add_argument("--eval-scenes", type=int, default=50, help="the sweep's --eval-scenes")
     parser.add_argument("--results-dir", type=Path, default=RESULTS_DIR, help="where reference-<task>.json go")

@@ -13,7 +13,8 @@ A reference summary is one JSON object:
   ``rn_sha256`` (its bytes: an RN's file name is not keyed), ``pointnet`` (the PointNet's keyed file name) and
   ``n_points``;
 - ``code_version``: ``prl.version.outcome_version`` of the task, as the points';
-- ``plans``: per plan kind (``REFERENCE_KINDS``: ``expert``, ``prior`` and, with an RN, ``rn``) ``successes``,
+- ``plans``: per plan kind (``REFERENCE_KINDS``: ``expert``, ``prior``, with an RN ``rn`` and, on a mixed variant,
+  ``oracle`` and ``family <k> expert``) ``successes``,
   ``n``, ``ci95`` (Wilson) and ``outcomes``, one per scene (``seed``, ``plan``, ``success``, ``measure``,
   ``error``), every kind on the same scenes in the same order;
 - ``started`` and ``finished`` (ISO 8601, UTC).
@@ -25,6 +26,7 @@ would run now (``REFERENCE_RECORD_KEYS``); anything else is computed again and t
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -41,12 +43,31 @@ from prl.ln_summary import (
 )
 from prl.stats import wilson_interval
 
-REFERENCE_KINDS: tuple[str, ...] = ("expert", "prior", "rn")
-"""The reference plan kinds, in the report's order: the expert plan, a prior-sampled plan, the RN's argmax plan."""
+REFERENCE_KINDS: tuple[str, ...] = ("expert", "prior", "rn", "oracle")
+"""The reference plan kinds, in the report's order: the expert plan, a prior-sampled plan, the RN's argmax plan and,
+on a mixed variant (``envs.families``), the family oracle; then each family's expert (``family <k> expert``)."""
+FAMILY_KIND = re.compile(r"family (\d+) expert")
+"""A mixed variant's kind of one family's expert plan on every scene."""
 REQUIRED_KINDS: tuple[str, ...] = ("expert", "prior")
-"""The kinds every reference has (the RN's only when the command was given one)."""
-REFERENCE_LABELS: dict[str, str] = {"expert": "expert plan", "prior": "prior-sampled plan", "rn": "RN argmax plan"}
-"""How the report names each kind."""
+"""The kinds every reference has (the RN's only when the command was given one; the oracle and the families' on a
+mixed variant)."""
+REFERENCE_LABELS: dict[str, str] = {"expert": "expert plan", "prior": "prior-sampled plan", "rn": "RN argmax plan",
+                                    "oracle": "family oracle (each scene's own family's expert)"}
+"""How the report names each kind (``family <k> expert``: "family k's expert plan")."""
+
+
+def reference_kinds(kinds: Iterable[str]) -> list[str]:
+    """The reference kinds among ``kinds``, in the report's order: ``REFERENCE_KINDS``, then the families' experts by
+    family index."""
+    kinds = set(kinds)
+    family = sorted((k for k in kinds if FAMILY_KIND.fullmatch(k)), key=lambda k: int(FAMILY_KIND.fullmatch(k)[1]))
+    return [k for k in REFERENCE_KINDS if k in kinds] + family
+
+
+def reference_label(kind: str) -> str:
+    """How the report names a reference kind."""
+    match = FAMILY_KIND.fullmatch(kind)
+    return f"family {match[1]}'s expert plan" if match else REFERENCE_LABELS[kind]
 REFERENCE_RECORD_KEYS: tuple[str, ...] = ("task", "settings", "code_version")
 """What decides a reference's outcome: it is reused only when all of these equal the command's."""
 
@@ -89,16 +110,16 @@ def check_reference(ref: Any, path: Path) -> None:
     _require(ref, REQUIRED, "", path)
     _require(ref["settings"], SETTINGS_KEYS, "settings.", path)
     plans = ref["plans"]
-    unknown = sorted(set(plans) - set(REFERENCE_KINDS))
+    unknown = sorted(set(plans) - set(reference_kinds(plans)))
     missing = [k for k in REQUIRED_KINDS if k not in plans]
     if unknown or missing:
-        raise SummaryError(f"{str(path)!r}: plans must be {', '.join(REQUIRED_KINDS)} and optionally rn; "
-                           + (f"unknown {unknown}" if unknown else f"missing {missing}"))
+        raise SummaryError(f"{str(path)!r}: plans must be {', '.join(REQUIRED_KINDS)} and optionally rn, oracle and "
+                           f"'family <k> expert'; " + (f"unknown {unknown}" if unknown else f"missing {missing}"))
     if ("rn" in plans) != ("rn" in ref["settings"]):
         raise SummaryError(f"{str(path)!r}: RN plans and settings.rn (the RN's file name) go together; "
                            f"{'the plans have no rn' if 'rn' in ref['settings'] else 'settings.rn is missing'}")
     scenes = None
-    for kind in (k for k in REFERENCE_KINDS if k in plans):
+    for kind in reference_kinds(plans):
         result = plans[kind]
         _require(result, PLAN_KEYS, f"plans.{kind}.", path)
         for i, outcome in enumerate(result["outcomes"]):

@@ -28,10 +28,10 @@ from prl.atomic import write_atomic
 from prl.config import LN_VARIANTS, PAPER_LN_DEMO_STEPS, LNConfig
 from prl.constants import REPO_ROOT, TASKS
 from prl.ln_reference import (
-    REFERENCE_KINDS,
-    REFERENCE_LABELS,
     read_references,
     reference_file_name,
+    reference_kinds,
+    reference_label,
     reference_seeds,
 )
 from prl.ln_summary import read_summaries
@@ -184,9 +184,9 @@ def _task_order(task: str) -> tuple[int, str]:
 def reference_rows(ref: Mapping[str, Any]) -> list[str]:
     """A success-table row per plan kind of a reference (``prl.ln_reference``): not trained, one run."""
     rows = []
-    for kind in (k for k in REFERENCE_KINDS if k in ref["plans"]):
+    for kind in reference_kinds(ref["plans"]):
         r = ref["plans"][kind]
-        rows.append(f"| {REFERENCE_LABELS[kind]} (reference) | - | {r['successes']}/{r['n']} "
+        rows.append(f"| {reference_label(kind)} (reference) | - | {r['successes']}/{r['n']} "
                     f"| {_rate(r['successes'], r['n'])} | - | not trained |")
     return rows
 
@@ -197,7 +197,8 @@ def reference_note(ref: Mapping[str, Any], members: Sequence[Mapping[str, Any]])
     st, seeds = ref["settings"], reference_seeds(ref)
     rn = f"; the RN is `{st['rn']}`" if "rn" in ref["plans"] else ""
     text = (f"Reference rows (`{reference_file_name(ref['task'])}`): the task's expert plan, a plan sampled from its "
-            f"prior per scene{' and the RN argmax plan' if 'rn' in ref['plans'] else ''}, executed on the "
+            f"prior per scene{' and the RN argmax plan' if 'rn' in ref['plans'] else ''}"
+            f"{', the family oracle and each family expert plan' if 'oracle' in ref['plans'] else ''}, executed on the "
             f"{len(seeds)} scenes of eval seed {st['eval_seed']} (scene seeds {seeds[0]} to {seeds[-1]}){rn}.")
     if not members:
         return text + " No point of this task yet."

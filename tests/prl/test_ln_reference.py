@@ -15,6 +15,8 @@ from prl.ln_reference import (
     plan_result,
     read_reference,
     read_references,
+    reference_kinds,
+    reference_label,
     reference_reuse,
     reference_seeds,
     write_reference,
@@ -59,6 +61,9 @@ def test_plan_result_counts_and_rounds() -> None:
     (lambda r: r["settings"].update(eval_scenes=5), "plans.expert has 4 outcomes, settings.eval_scenes is 5"),
     (lambda r: r["plans"]["prior"]["outcomes"][0].update(seed=7), "plans.prior ran on other scenes than"),
     (lambda r: r.update(task="sweep"), "belongs in a file named 'reference-sweep.json'"),
+    (lambda r: r["plans"].update({"family x expert": r["plans"]["prior"]}), r"unknown \['family x expert'\]"),
+    (lambda r: r["plans"].update({"family 1 expert": {**r["plans"]["prior"], "n": 3}}),
+     r"plans.family 1 expert says 1/3 but"),
 ])
 def test_a_malformed_reference_is_named(tmp_path: Path, edit, match: str) -> None:
     ref = json.loads(REFERENCE.read_text())
@@ -99,3 +104,17 @@ def test_a_reference_is_kept_only_for_the_same_task_settings_and_code() -> None:
     assert reference_reuse(ref, {**same, "started": "another day"})[0]  # when it ran is recorded, not compared
     with pytest.raises(ValueError, match="lacks"):
         reference_reuse(ref, {"task": "hammer"})
+
+
+def test_a_mixed_variants_kinds_are_kept_in_the_reports_order(tmp_path: Path) -> None:
+    """The family oracle and each family's expert (envs.families) are reference kinds: checked like the others,
+    ordered after the expert, the prior and the RN, families by index (10 after 2)."""
+    ref = json.loads(REFERENCE.read_text())
+    for kind in ("family 10 expert", "oracle", "family 2 expert"):
+        ref["plans"][kind] = copy.deepcopy(ref["plans"]["prior"])
+    path = tmp_path / REFERENCE.name
+    path.write_text(json.dumps(ref))
+    assert reference_kinds(read_reference(path)["plans"]) == ["expert", "prior", "rn", "oracle", "family 2 expert",
+                                                              "family 10 expert"]
+    assert reference_label("family 2 expert") == "family 2's expert plan"
+    assert reference_label("oracle").startswith("family oracle")
