@@ -102,3 +102,17 @@ def test_the_command_names_bad_input(capsys) -> None:
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2 and named in capsys.readouterr().err, argv
+
+
+@pytest.mark.sim
+def test_the_command_prints_the_oracle_and_the_best_fixed_plan(capsys) -> None:
+    """Trial scenes 0 and 1 (run seed 0) are a flask and a wide lid: the oracle opens both, each family's plan one."""
+    from envs.families import main
+
+    assert main(["--task", "unscrew_mixed", "--scenes", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "unscrew_mixed on 2 trial scenes (families: {0: 1, 1: 1})"
+    assert out[1].startswith("oracle ") and "2/2 = 1.00" in out[1] and out[1].endswith("family 0: 1/1; family 1: 1/1")
+    assert "1/2 = 0.50" in out[2] and out[2].endswith("family 0: 1/1; family 1: 0/1")
+    assert "1/2 = 0.50" in out[3] and out[3].endswith("family 0: 0/1; family 1: 1/1")
+    assert out[4].startswith("best single fixed plan of 2: family 0 expert")
