@@ -1,0 +1,217 @@
+"""PRL-TweezeMixed-v1 (issue #26): each scene's family is drawn from its seed, each family needs its own plan (its
+expert lifts the cube on its scenes, the other family's does not), x tells the families apart, the base task's
+honesty rules hold, and a bad family table is an error naming the bad value."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+TWEEZE_SEEDS = {0: 0, 1: 1}
+"""A scene of each tweeze_mixed family (seed 0: the base task's tweezers, seed 1: long tweezers with a deep cube;
+checked below)."""
+
+
+@pytest.fixture(scope="module")
+def tweeze_env(make_task_env):
+    return make_task_env("tweeze_mixed")
+
+
+@pytest.fixture(scope="module")
+def tweeze_executor(tweeze_env):
+    from envs.executor import PlanExecutor  # heavy: loads the simulator
+
+    return PlanExecutor(tweeze_env)
+
+
+def _cls():
+    from envs.tasks.tweeze_mixed import PRLTweezeMixedEnv  # heavy: loads the simulator's modules (no scene)
+
+    return PRLTweezeMixedEnv
+
+
+# ------------------------------------------------------------------ pure logic (no scene is built)
+def test_the_interface_the_issue_asks_for() -> None:
+    from envs.tasks import TASK_ENV_IDS, task_class
+    from envs.tasks.tweeze import PRLTweezeEnv
+
+    cls = _cls()
+    assert TASK_ENV_IDS["tweeze_mixed"] == "PRL-TweezeMixed-v1" and task_class("tweeze_mixed") is cls
+    assert set(cls.family_expert_plans) == {0, 1} and cls.expert_plan == cls.family_expert_plans[0]
+    assert cls.expert_plan == PRLTweezeEnv.expert_plan  # family 0 is the base task's scenes and expert
+    assert cls.family_expert_plans[0] != cls.family_expert_plans[1]
+    assert cls.family_plan(1) == cls.family_expert_plans[1]
+    assert cls.unacted_dims == PRLTweezeEnv.unacted_dims and cls.stages == PRLTweezeEnv.stages
+    cls.check_families()
+
+
+@pytest.mark.parametrize(("attrs", "match"), [
+    ({"family_expert_plans": {}}, "family_expert_plans must map each family index to a plan, got {}"),
+    ({"family_expert_plans": [(2, 1, 4, 2, 6, 1)]}, "family_expert_plans must map"),
+    ({"family_expert_plans": {0: (2, 1, 4, 2, 6, 1)}}, "no plan for family 1"),
+    ({"family_expert_plans": {0: (2, 1, 4, 2, 6, 1), 1: (2, 2, 5, 3, 6, 1), 2: (2, 1, 4, 2, 6, 1)}},
+     "family index 2, not one of the 2 families 0..1"),
+    ({"family_expert_plans": {0: (2, 1, 4, 2, 6, 1), "1": (2, 2, 5, 3, 6, 1)}}, "family index '1'"),
+    ({"family_expert_plans": {0: (2, 1, 4, 2, 6, 1), 1: (2, 2, 5, 7, 6, 1)}},
+     r"family_expert_plans\[1\] = \(2, 2, 5, 7, 6, 1\) is not a plan: .*grasp_pattern is 7"),
+    ({"family_expert_plans": {0: (2, 1, 4, 2, 6, 1), 1: (2, 2, 5)}}, r"family_expert_plans\[1\] = \(2, 2, 5\)"),
+    ({"expert_plan": (2, 2, 5, 3, 6, 1)}, r"expert_plan \(2, 2, 5, 3, 6, 1\) must be family 0's plan"),
+    ({"families": ()}, r"families must list at least two families, got \(\)"),
+])
+def test_a_bad_family_table_is_named_before_any_scene_is_built(attrs: dict, match: str) -> None:
+    bad = type("BadMixed", (_cls(),), dict(attrs))  # not registered: only the class's checks run
+    with pytest.raises(ValueError, match=match):
+        bad.check_families()
+    with pytest.raises(ValueError, match=match):
+        bad()  # creating the environment checks the table first
+
+
+@pytest.mark.parametrize("family", [2, -1, 1.0, True, "0"])
+def test_a_family_index_out_of_range_is_named(family) -> None:
+    with pytest.raises(ValueError, match=f"family {family!r} is out of range: PRLTweezeMixedEnv has families 0..1"):
+        _cls().family_plan(family)
+
+
+def test_a_malformed_tweeze_family_is_named() -> None:
+    from envs.tasks.tweeze_mixed import TIPS, TweezeFamily
+
+    with pytest.raises(ValueError, match=r"tweeze family 'odd': arm_length must be a range .*0 < low <= high.* "
+                                         r"got \(0.2, 0.1\)"):
+        TweezeFamily("odd", arm_length=(0.2, 0.1))
+    with pytest.raises(ValueError, match=r"tweeze family 'odd': cube_size must be a range .* got \(0.0, 0.02\)"):
+        TweezeFamily("odd", cube_size=(0.0, 0.02))
+    with pytest.raises(ValueError, match=r"tweeze family 'odd': cube_along must be a range .*low <= high.* "
+                                         r"got \(-0.05, -0.06\)"):
+        TweezeFamily("odd", cube_along=(-0.05, -0.06))
+    with pytest.raises(ValueError, match=r"tweeze family 'odd': tip_gap must be a range .* got \(0.04,\)"):
+        TweezeFamily("odd", tip_gap=(0.04,))
+    TweezeFamily("deep", cube_along=(-0.07, -0.06))  # negative positions along the arms are fine
+    bad = type("BadMixed", (_cls(),), {"families": (TIPS, "long tweezers")})
+    with pytest.raises(ValueError, match=r"BadMixed.families\[1\] must be a TweezeFamily, got 'long tweezers'"):
+        bad.check_families()
+
+
+# ------------------------------------------------------------------ physics
+@pytest.mark.sim
+def test_the_family_is_drawn_from_the_seed(tweeze_env) -> None:
+    from envs.tasks.tweeze_mixed import LONG_DEEP, TIPS
+
+    env = tweeze_env
+    seen = {}
+    for seed in range(8):
+        env.reset(seed=seed)
+        family = env.scene_params["family"]
+        assert type(family) is int and family in (0, 1)
+        seen[seed] = (family, dict(env.scene_params))
+    assert {f for f, _ in seen.values()} == {0, 1}  # both families among 8 seeds
+    assert {s: f for s, (f, _) in seen.items() if s in TWEEZE_SEEDS} == TWEEZE_SEEDS
+    for seed in (3, 0, 3):  # the same seed again, after other scenes: the same family and the same scene
+        env.reset(seed=seed)
+        assert env.scene_params == seen[seed][1]
+    for family, params in seen.values():  # each family's values lie in its own ranges
+        spec = (TIPS, LONG_DEEP)[family]
+        for key in ("arm_length", "tip_gap", "cube_size", "cube_along"):
+            low, high = getattr(spec, key)
+            assert low <= params[key] <= high, (family, key, params[key])
+
+
+@pytest.mark.sim
+def test_each_family_needs_its_own_plan(tweeze_env, tweeze_executor, monkeypatch) -> None:
+    """On a scene of each family its expert lifts the cube with the tips (no hand link ever touching it) and the
+    other family's expert does not (measured on 30 scenes of each family: own expert 30/30 and 30/30; the family 1
+    expert 0/30 on family 0; the family 0 expert touches the deep cube on most family 1 scenes). Nothing is
+    written to a pose while the plan runs."""
+    from honesty import no_state_writes
+
+    plans = _cls().family_expert_plans
+    for family, seed in TWEEZE_SEEDS.items():
+        tweeze_executor.observe(seed=seed)
+        assert tweeze_env.scene_params["family"] == family
+        with no_state_writes(monkeypatch) as writes:
+            own = tweeze_executor.run(plans[family])
+        assert writes == []
+        assert own.success and own.outcome["cube_lift_cm"] > 10.0, (family, own.outcome)
+        assert not own.outcome["hand_touches_cube"], (family, own.outcome)
+        other = tweeze_executor.run(plans[1 - family], seed=seed)
+        assert not other.success, (family, other.outcome)
+
+
+@pytest.mark.sim
+def test_x_tells_the_families_apart(tweeze_env, tweeze_executor, pointnet_path) -> None:
+    """The meshes rebuilt from scene_params (the base task's builders) differ in size between the families (the
+    tweezers' length in the tool cloud, the cube's edge in the object's), as do their PointNet features; and
+    x_manip's recorded poses place the cube much deeper between the arms in family 1 (the family index is in no
+    part of x)."""
+    import prl.shapes as S
+    from prl.demo import X_MANIP_LAYOUT, X_MANIP_SAMPLES
+    from prl.features import point_features
+    from prl.pointnet import load_pointnet
+
+    params, x_manip = {}, {}
+    for family, seed in TWEEZE_SEEDS.items():
+        x_manip[family] = tweeze_executor.observe(seed=seed)
+        params[family] = dict(tweeze_env.scene_params)
+    extents = {f: [m.extents for m in S.scene_meshes("tweeze_mixed", p)] for f, p in params.items()}
+    assert extents[0][0][0] < 0.19 and extents[1][0][0] > 0.25  # the tweezers' length (arms + butt)
+    assert extents[0][1][0] < 0.0251 and extents[1][1][0] > 0.0239  # the cube's edge (2.0-2.5 cm, 2.4-2.7 cm)
+    for f, p in params.items():  # the variant's meshes are the base task's, from the same values
+        base = S.scene_meshes("tweeze", p)
+        np.testing.assert_allclose(extents[f][0], base[0].extents)
+        np.testing.assert_allclose(extents[f][1], base[1].extents)
+
+    # x_manip: the cube's distance from the tweezers' hinge (the tool pose's origin), as a fraction of the
+    # tweezers' length (which the tool cloud carries)
+    width = sum(w for _, w in X_MANIP_LAYOUT)
+    start = {name: sum(w for _, w in X_MANIP_LAYOUT[:i]) for i, (name, _) in enumerate(X_MANIP_LAYOUT)}
+    depth = {}
+    for f, x in x_manip.items():
+        assert x.shape == (X_MANIP_SAMPLES * width,) and np.isfinite(x).all()
+        first = x.reshape(X_MANIP_SAMPLES, width)[0]
+        tool = first[start["tool_pose"]:start["tool_pose"] + 3]
+        cube = first[start["object_pose"]:start["object_pose"] + 3]
+        depth[f] = float(np.linalg.norm((cube - tool)[:2])) / extents[f][0][0]
+    assert depth[0] > 0.8 and depth[1] < 0.72, depth  # near the tips, or deep between the arms
+
+    pointnet = load_pointnet(pointnet_path)
+    tool, obj = point_features(pointnet, ["tweeze_mixed"] * 2, list(TWEEZE_SEEDS.values()),
+                               [params[0], params[1]], 64)
+    assert not np.allclose(tool[0], tool[1]) and not np.allclose(obj[0], obj[1])
+
+
+@pytest.mark.sim
+def test_open_fingers_and_a_cube_that_cannot_be_lifted_fail_on_both_families(tweeze_env, tweeze_executor,
+                                                                            monkeypatch) -> None:
+    """The base task's honesty rules hold on the variant: each family's expert with its grasp's closed posture
+    replaced by the open one (limp fingers) does not lift the cube, nor does it lift a 2 kg cube (an object the
+    tips' friction cannot carry: a patched family table); nothing is written to a pose while the plan runs."""
+    from dataclasses import replace
+
+    from honesty import no_state_writes
+
+    from prl import stages as ex
+    from prl.plb import load_plb
+
+    cls = _cls()
+    names = next(d.choices for d in load_plb().dims if d.name == "grasp_pattern")
+    for family, seed in TWEEZE_SEEDS.items():
+        plan = cls.family_expert_plans[family]
+        posture = names[plan[3]]
+        with monkeypatch.context() as m:
+            closed = ex.GRASP_POSTURES[posture]
+            m.setitem(ex.GRASP_POSTURES, posture, replace(closed, closed=closed.open))
+            tweeze_executor.observe(seed=seed)
+            with no_state_writes(m) as writes:
+                limp = tweeze_executor.run(plan)
+            assert writes == []
+        assert tweeze_env.scene_params["family"] == family
+        assert not limp.success and limp.outcome["cube_lift_cm"] < 10.0, (family, limp.outcome)
+    heavy = tuple(replace(spec, cube_mass=(2.0, 2.0)) for spec in cls.families)
+    monkeypatch.setattr(cls, "families", heavy)
+    for family, seed in TWEEZE_SEEDS.items():
+        tweeze_executor.observe(seed=seed)
+        with no_state_writes(monkeypatch) as writes:
+            result = tweeze_executor.run(cls.family_expert_plans[family])
+        assert writes == []
+        assert tweeze_env.scene_params["family"] == family
+        assert tweeze_env.scene_params["cube_mass"] == 2.0  # the scene was rebuilt from the patched table
+        assert not result.success and result.outcome["cube_lift_cm"] < 10.0, (family, result.outcome)
