@@ -147,3 +147,24 @@ def test_a_malformed_reference_is_named(tmp_path: Path) -> None:
     assert str(bad) in str(info.value)
     assert not (tmp_path / "r.md").exists()  # nothing written
     assert len(read_summaries(tmp_path / "ln")) == 5  # the point summaries are read without it
+
+
+def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
+    """A paper task's target is K = 1,280 pooled >= 0.90; a variant's is its largest K run pooled >= 0.85 (#26),
+    counted by hand."""
+    from prl.report import Group, target_line
+
+    def points(*counts: int) -> list[dict]:
+        return [{"eval": {"successes": k, "n": 50}} for k in counts]
+
+    groups = {Group(0, "hammer", 0, "physics", 1280, 3200): points(45, 44),
+              Group(0, "hammer", 0, "physics", 0, 3200): points(50),
+              Group(4, "unscrew_mixed", 0, "physics", 200, 3200): points(50),
+              Group(4, "unscrew_mixed", 0, "physics", 400, 3200): points(43, 42),
+              Group(4, "unscrew_mixed", 0, "physics", 800, 640): points(50)}
+    assert target_line("hammer", groups) == "Target (physics K = 1,280, pooled >= 0.90): **missed** (89/100 over 2 seeds)."
+    assert target_line("unscrew_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos "
+                                                    "(K = 400), pooled >= 0.85): met (85/100 over 2 seeds).")
+    assert target_line("sweep", groups) == "Target (physics K = 1,280, pooled >= 0.90): not run yet."
+    assert target_line("sweep_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos, "
+                                                  "pooled >= 0.85): not run yet.")
