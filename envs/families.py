@@ -41,25 +41,22 @@ def family_plans(task: str) -> dict[int, tuple[int, ...]] | None:
 def oracle_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
                     randomization: float = 1.0) -> tuple[list[Any], list[int]]:
     """The family oracle on ``seeds``' scenes: each scene's own family's expert plan. Returns the outcomes
-    (``envs.trials.TrialOutcome``) and each scene's family. ``ValueError`` for a task without families."""
+    (``envs.trials.TrialOutcome``) and each scene's family (-1 where the scene raised before the oracle read it, a
+    failed outcome). ``ValueError`` for a task without families."""
     from envs.trials import run_policy  # heavy: loads the simulator
 
     plans = family_plans(task)
     if plans is None:
         raise ValueError(f"task {task!r} has no scene families (no family_expert_plans): no oracle")
-    families: list[int] = []
+    families: dict[int, int] = {}
 
     def oracle(i: int, env: Any, x_manip: np.ndarray) -> tuple[int, ...]:
-        family = int(env.scene_params["family"])
-        families.append(family)
-        return plans[family]
+        families[i] = int(env.scene_params["family"])
+        return plans[families[i]]
 
     outcomes = run_policy(task, oracle, seeds, n_frames=n_frames, randomization=randomization,
                           desc=f"{task} family oracle")
-    if len(families) != len(outcomes):  # a scene whose reset raised never asked the oracle
-        raise RuntimeError(f"{task}: {len(outcomes) - len(families)} of {len(outcomes)} scenes raised before the "
-                           f"oracle read their family")
-    return outcomes, families
+    return outcomes, [families.get(i, -1) for i in range(len(outcomes))]  # -1: the scene raised before the oracle
 
 
 def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
@@ -81,12 +78,12 @@ def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRA
 
 def families_of_oracle(task: str, oracle: Sequence[Any]) -> list[int]:
     """Each scene's family, read back from the plan the oracle ran on it (the families' plans differ:
-    ``MixedFamilies.check_families``)."""
+    ``MixedFamilies.check_families``); -1 for a scene that raised before the oracle chose (no plan)."""
     plans = family_plans(task)
     if plans is None:
         raise ValueError(f"task {task!r} has no scene families (no family_expert_plans)")
     family_of = {plan: family for family, plan in plans.items()}
-    return [family_of[tuple(int(v) for v in o.plan)] for o in oracle]
+    return [family_of.get(tuple(int(v) for v in o.plan), -1) for o in oracle]
 
 
 def per_family(outcomes: Sequence[Any], families: Sequence[int]) -> dict[int, tuple[int, int]]:

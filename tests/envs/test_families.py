@@ -32,8 +32,8 @@ def test_families_are_read_back_from_the_oracles_plans() -> None:
     plans = family_plans("unscrew_mixed")
     assert plans == {0: (0, 3, 2, 3, 5, 1), 1: (4, 3, 4, 0, 5, 1)}
     assert family_plans("unscrew") is None
-    oracle = [_outcome(True, plans[1]), _outcome(False, plans[0]), _outcome(True, plans[1])]
-    assert families_of_oracle("unscrew_mixed", oracle) == [1, 0, 1]
+    oracle = [_outcome(True, plans[1]), _outcome(False, plans[0]), _outcome(True, plans[1]), _outcome(False, ())]
+    assert families_of_oracle("unscrew_mixed", oracle) == [1, 0, 1, -1]  # -1: the scene raised before a plan
     with pytest.raises(ValueError, match="task 'hammer' has no scene families"):
         families_of_oracle("hammer", oracle)
     with pytest.raises(ValueError, match="unknown task 'hamer'"):
