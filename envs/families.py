@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from prl.constants import EPISODE_FRAMES
+from prl.stats import format_rate
 
 
 def family_plans(task: str) -> dict[int, tuple[int, ...]] | None:
@@ -108,8 +109,6 @@ def frequent_plans(plans: Sequence[Sequence[int]], top: int) -> list[tuple[tuple
 
 def family_line(name: str, outcomes: Sequence[Any], families: Sequence[int]) -> str:
     """One printed row: overall successes with the Wilson interval, then per family."""
-    from prl.stats import format_rate
-
     k = sum(bool(o.success) for o in outcomes)
     parts = [f"{name:<28} {format_rate(k, len(outcomes))}"]
     parts += [f"family {f}: {s}/{n}" for f, (s, n) in per_family(outcomes, families).items()]
@@ -147,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"task {args.task!r} has no scene families (no family_expert_plans)")
     if args.dataset_root is not None and not (Path(args.dataset_root) / "meta" / "info.json").is_file():
         parser.error(f"--dataset-root {args.dataset_root!r}: no exported dataset there (meta/info.json missing)")
-    from envs.trials import run_trials, trial_scene_seeds
+    from envs.trials import run_trials, trial_scene_seeds  # heavy: loads the simulator
 
     seeds = trial_scene_seeds(args.seed, args.scenes)
     out, families = family_outcomes(args.task, seeds)
