@@ -19,11 +19,9 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from prl.constants import EPISODE_FRAMES
 from prl.stats import format_rate
@@ -40,41 +38,34 @@ def family_plans(task: str) -> dict[int, tuple[int, ...]] | None:
 
 
 def oracle_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
-                    randomization: float = 1.0) -> tuple[list[Any], list[int]]:
-    """The family oracle on ``seeds``' scenes: each scene's own family's expert plan. Returns the outcomes
-    (``envs.trials.TrialOutcome``) and each scene's family (-1 where the scene raised before the oracle read it, a
-    failed outcome). ``ValueError`` for a task without families."""
+                    randomization: float = 1.0) -> list[Any]:
+    """The family oracle on ``seeds``' scenes: each scene's own family's expert plan (``envs.trials.TrialOutcome``
+    each; ``families_of_oracle`` reads the families back). ``ValueError`` for a task without families."""
     from envs.trials import run_policy  # heavy: loads the simulator
 
     plans = family_plans(task)
     if plans is None:
         raise ValueError(f"task {task!r} has no scene families (no family_expert_plans): no oracle")
-    families: dict[int, int] = {}
-
-    def oracle(i: int, env: Any, x_manip: np.ndarray) -> tuple[int, ...]:
-        families[i] = int(env.scene_params["family"])
-        return plans[families[i]]
-
-    outcomes = run_policy(task, oracle, seeds, n_frames=n_frames, randomization=randomization,
-                          desc=f"{task} family oracle")
-    return outcomes, [families.get(i, -1) for i in range(len(outcomes))]  # -1: the scene raised before the oracle
+    return run_policy(task, lambda i, env, x_manip: plans[int(env.scene_params["family"])], seeds,
+                      n_frames=n_frames, randomization=randomization, desc=f"{task} family oracle")
 
 
-def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES,
-                    randomization: float = 1.0) -> tuple[dict[str, list[Any]], list[int]]:
-    """The oracle and every family's expert (``family <k> expert``) on ``seeds``' scenes, and each scene's
-    family; ``({}, [])`` for a task without families."""
+def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRAMES, randomization: float = 1.0,
+                    ran: Mapping[tuple[int, ...], list[Any]] | None = None) -> dict[str, list[Any]]:
+    """The oracle and every family's expert (``family <k> expert``) on ``seeds``' scenes; ``{}`` for a task without
+    families. ``ran``: outcomes of plans already executed on these scenes with these settings, by plan (the task's
+    expert is family 0's plan), reused instead of run again."""
     from envs.trials import run_trials  # heavy: loads the simulator
 
     plans = family_plans(task)
     if plans is None:
-        return {}, []
-    oracle, families = oracle_outcomes(task, seeds, n_frames, randomization)
-    out = {"oracle": oracle}
+        return {}
+    ran = ran or {}
+    out = {"oracle": oracle_outcomes(task, seeds, n_frames, randomization)}
     for k, plan in plans.items():
-        out[f"family {k} expert"] = run_trials(task, [plan] * len(seeds), list(seeds), n_frames=n_frames,
-                                               randomization=randomization)
-    return out, families
+        out[f"family {k} expert"] = ran.get(plan) or run_trials(task, [plan] * len(seeds), list(seeds),
+                                                                n_frames=n_frames, randomization=randomization)
+    return out
 
 
 def families_of_oracle(task: str, oracle: Sequence[Any]) -> list[int]:
@@ -149,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     from envs.trials import run_trials, trial_scene_seeds  # heavy: loads the simulator
 
     seeds = trial_scene_seeds(args.seed, args.scenes)
-    out, families = family_outcomes(args.task, seeds)
+    out = family_outcomes(args.task, seeds)
+    families = families_of_oracle(args.task, out["oracle"])
     print(f"{args.task} on {len(seeds)} trial scenes (families: {dict(sorted(Counter(families).items()))})")
     for name, outs in out.items():
         print(family_line(name, outs, families))

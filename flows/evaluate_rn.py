@@ -81,12 +81,14 @@ def baseline_outcomes(task_name: str, seeds: list[int], n_frames: int, randomiza
     (``envs.trials.plan_set`` seeded ``prior_seed``) and the task's expert plan; on a mixed variant also the family
     oracle and each family's expert (``envs.families.family_outcomes``); the outcomes of each, by kind."""
     from envs.families import family_outcomes  # heavy: loads the simulator
+    from envs.tasks import task_class
     from envs.trials import plan_set, run_trials
 
     out = {kind: run_trials(task_name, plan_set(task_name, kind, len(seeds), plan_seed), seeds, n_frames=n_frames,
                             randomization=randomization)
            for kind, plan_seed in zip(BASELINES, (prior_seed, 0), strict=True)}
-    return {**out, **family_outcomes(task_name, seeds, n_frames, randomization)[0]}
+    ran = {tuple(task_class(task_name).expert_plan): out["expert"]}  # family 0's plan: not run twice
+    return {**out, **family_outcomes(task_name, seeds, n_frames, randomization, ran)}
 
 
 @task(name="rn-eval", cache_policy=NO_CACHE)
@@ -170,7 +172,7 @@ def find_pointnet(rn_path: Path, pointnet_path: Path | None) -> Path:
 def check_eval_args(task: str, scenes: int, first_seed: int, randomization: float, decodings: Sequence[str]) -> None:
     """ValueError naming an unknown task or decoding, or a bad count, seed or randomisation scale."""
     import envs  # noqa: F401  (registers the hand agent and the tasks)
-    from envs.tasks import task_class
+    from envs.tasks import task_class  # heavy: loads the simulator
 
     task_class(task)
     for kind in decodings:

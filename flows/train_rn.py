@@ -60,7 +60,7 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         acc = dict(zip(plb.dim_names, (float(a) for a in per_dim_accuracy(model, x[val], y[val])), strict=True))
         mlflow.log_metrics({f"val_accuracy/{name}": a for name, a in acc.items()})
         print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in acc.items()))
-        groups = figure_groups(data["tasks"], data.get("families", [-1] * len(x)))
+        groups = figure_groups(data["tasks"], data["families"])
         val_groups = {name: np.intersect1d(rows, val) for name, rows in groups.items()}
         val_groups = {name: rows for name, rows in val_groups.items() if len(rows)}
         for name, rows in val_groups.items():

@@ -83,7 +83,10 @@ def test_the_rn_evaluation_reports_each_family(monkeypatch, capsys) -> None:
 def test_the_oracle_runs_each_scenes_own_family_plan() -> None:
     from envs.families import oracle_outcomes
 
-    outcomes, families = oracle_outcomes("unscrew_mixed", [0, 1])
+    from envs.families import families_of_oracle
+
+    outcomes = oracle_outcomes("unscrew_mixed", [0, 1])
+    families = families_of_oracle("unscrew_mixed", outcomes)
     assert families == [0, 1]  # seed 0 a flask, seed 1 a wide lid (tests/envs/test_unscrew_mixed.py)
     assert [o.plan for o in outcomes] == [(0, 3, 2, 3, 5, 1), (4, 3, 4, 0, 5, 1)]
     assert all(o.success for o in outcomes)
