@@ -13,15 +13,8 @@ HAMMER_SEEDS = {0: 0, 1: 1}
 
 
 @pytest.fixture(scope="module")
-def hammer_env(make_task_env):
+def env(make_task_env):
     return make_task_env("hammer_mixed")
-
-
-@pytest.fixture(scope="module")
-def hammer_executor(hammer_env):
-    from envs.executor import PlanExecutor  # heavy: loads the simulator
-
-    return PlanExecutor(hammer_env)
 
 
 def _cls():
@@ -57,10 +50,9 @@ def test_a_malformed_nail_family_is_named() -> None:
 
 # ------------------------------------------------------------------ physics
 @pytest.mark.sim
-def test_the_family_is_drawn_from_the_seed(hammer_env) -> None:
+def test_the_family_is_drawn_from_the_seed(env) -> None:
     from envs.tasks.hammer_mixed import SLANTED, UPRIGHT
 
-    env = hammer_env
     seen = {}
     for seed in range(8):
         env.reset(seed=seed)
@@ -79,25 +71,25 @@ def test_the_family_is_drawn_from_the_seed(hammer_env) -> None:
 
 
 @pytest.mark.sim
-def test_each_family_needs_its_own_plan(hammer_env, hammer_executor, monkeypatch) -> None:
+def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
     """On a scene of each family its expert drives the nail and the other family's expert does not (measured on 30
     scenes of each family, seeds 20000-20062: own expert 30/30 and 30/30, the other's 2/30 and 2/30)."""
     from honesty import no_state_writes
 
     plans = _cls().family_expert_plans
     for family, seed in HAMMER_SEEDS.items():
-        hammer_executor.observe(seed=seed)
-        assert hammer_env.scene_params["family"] == family
+        executor.observe(seed=seed)
+        assert env.scene_params["family"] == family
         with no_state_writes(monkeypatch) as writes:
-            own = hammer_executor.run(plans[family])
+            own = executor.run(plans[family])
         assert writes == []
         assert own.success and own.outcome["nail_descent_cm"] > 0.5, (family, own.outcome)
-        other = hammer_executor.run(plans[1 - family], seed=seed)
+        other = executor.run(plans[1 - family], seed=seed)
         assert not other.success, (family, other.outcome)
 
 
 @pytest.mark.sim
-def test_x_tells_the_families_apart(hammer_env, hammer_executor, pointnet_path) -> None:
+def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """x_manip records the nail's frame in the observation phase: its Z axis is vertical in family 0 and leans
     35-45 deg towards the board's -X in family 1. The meshes rebuilt from scene_params are the base task's from the
     same values, with or without the family index (the index is in no part of x)."""
@@ -107,8 +99,8 @@ def test_x_tells_the_families_apart(hammer_env, hammer_executor, pointnet_path) 
 
     params, x_manip = {}, {}
     for family, seed in HAMMER_SEEDS.items():
-        x_manip[family] = hammer_executor.observe(seed=seed)
-        params[family] = dict(hammer_env.scene_params)
+        x_manip[family] = executor.observe(seed=seed)
+        params[family] = dict(env.scene_params)
     assert x_manip[0].shape == x_manip[1].shape and np.isfinite(x_manip[0]).all() and np.isfinite(x_manip[1]).all()
     z = {f: _object_z(x) for f, x in x_manip.items()}
     lean = {f: np.rad2deg(np.arccos(np.clip(v[:, 2], -1.0, 1.0))) for f, v in z.items()}
@@ -128,7 +120,7 @@ def test_x_tells_the_families_apart(hammer_env, hammer_executor, pointnet_path) 
 
 
 @pytest.mark.sim
-def test_limp_fingers_and_a_nail_that_cannot_move_fail_on_both_families(hammer_env, hammer_executor,
+def test_limp_fingers_and_a_nail_that_cannot_move_fail_on_both_families(env, executor,
                                                                         monkeypatch) -> None:
     """The base task's honesty rules hold on the variant: each family's expert with its grasp's closed posture
     replaced by the open one (limp fingers) does not drive the nail, nor does it drive a nail held by 1e5 N (an
@@ -148,19 +140,19 @@ def test_limp_fingers_and_a_nail_that_cannot_move_fail_on_both_families(hammer_e
         with monkeypatch.context() as m:
             closed = ex.GRASP_POSTURES[posture]
             m.setitem(ex.GRASP_POSTURES, posture, replace(closed, closed=closed.open))
-            hammer_executor.observe(seed=seed)
+            executor.observe(seed=seed)
             with no_state_writes(m) as writes:
-                limp = hammer_executor.run(plan)
+                limp = executor.run(plan)
             assert writes == []
-        assert hammer_env.scene_params["family"] == family
+        assert env.scene_params["family"] == family
         assert not limp.success and limp.outcome["nail_descent_cm"] <= 0.05, (family, limp.outcome)
     stuck = tuple(replace(spec, nail_hold_force=(1e5, 1e5)) for spec in cls.families)
     monkeypatch.setattr(cls, "families", stuck)
     for family, seed in HAMMER_SEEDS.items():
-        hammer_executor.observe(seed=seed)
+        executor.observe(seed=seed)
         with no_state_writes(monkeypatch) as writes:
-            result = hammer_executor.run(cls.family_expert_plans[family])
+            result = executor.run(cls.family_expert_plans[family])
         assert writes == []
-        assert hammer_env.scene_params["family"] == family
-        assert hammer_env.scene_params["nail_hold_force"] == 1e5  # the scene was rebuilt from the patched table
+        assert env.scene_params["family"] == family
+        assert env.scene_params["nail_hold_force"] == 1e5  # the scene was rebuilt from the patched table
         assert not result.success and result.outcome["nail_depth_cm"] < 0.05, (family, result.outcome)

@@ -12,15 +12,8 @@ SWEEP_SEEDS = {0: 0, 1: 1}
 
 
 @pytest.fixture(scope="module")
-def sweep_env(make_task_env):
+def env(make_task_env):
     return make_task_env("sweep_mixed")
-
-
-@pytest.fixture(scope="module")
-def sweep_executor(sweep_env):
-    from envs.executor import PlanExecutor  # heavy: loads the simulator
-
-    return PlanExecutor(sweep_env)
 
 
 def _cls():
@@ -55,10 +48,9 @@ def test_a_malformed_sweep_family_is_named() -> None:
 
 # ------------------------------------------------------------------ physics
 @pytest.mark.sim
-def test_the_family_is_drawn_from_the_seed(sweep_env) -> None:
+def test_the_family_is_drawn_from_the_seed(env) -> None:
     from envs.tasks.sweep import BROOM_REST_YAW_RANGE, PRLSweepEnv
 
-    env = sweep_env
     seen = {}
     for seed in range(8):
         env.reset(seed=seed)
@@ -93,26 +85,26 @@ def test_the_family_is_drawn_from_the_seed(sweep_env) -> None:
 
 
 @pytest.mark.sim
-def test_each_family_needs_its_own_plan(sweep_env, sweep_executor, monkeypatch) -> None:
+def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
     """On a scene of each family its expert sweeps more than 3 cubes into the zone and the other family's expert
     sweeps none (measured on 30 scenes of each family: own expert 30/30 and 30/30, the other's 0/30 and 0/30)."""
     from honesty import no_state_writes
 
     plans = _cls().family_expert_plans
     for family, seed in SWEEP_SEEDS.items():
-        sweep_executor.observe(seed=seed)
-        assert sweep_env.scene_params["family"] == family
+        executor.observe(seed=seed)
+        assert env.scene_params["family"] == family
         with no_state_writes(monkeypatch) as writes:
-            own = sweep_executor.run(plans[family])
+            own = executor.run(plans[family])
         assert writes == []
         assert own.success and own.outcome["cubes_in_zone"] > 3, (family, own.outcome)
         assert own.outcome["zone_cubes_hand_touched"] == 0 and own.outcome["zone_cubes_loose_pushed"] == 0
-        other = sweep_executor.run(plans[1 - family], seed=seed)
+        other = executor.run(plans[1 - family], seed=seed)
         assert not other.success and other.outcome["cubes_in_zone"] == 0, (family, other.outcome)
 
 
 @pytest.mark.sim
-def test_x_tells_the_families_apart(sweep_env, sweep_executor, pointnet_path) -> None:
+def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """The debris patch rebuilt from scene_params (the base task's builders) lies across X in one family and across
     Y in the other, so its point cloud and PointNet feature differ; x_manip records the sweep frame's and the broom's
     yaw, a quarter turn apart. The family index is read by no mesh builder (x does not contain it)."""
@@ -123,8 +115,8 @@ def test_x_tells_the_families_apart(sweep_env, sweep_executor, pointnet_path) ->
 
     params, x_manip = {}, {}
     for family, seed in SWEEP_SEEDS.items():
-        x_manip[family] = sweep_executor.observe(seed=seed)
-        params[family] = dict(sweep_env.scene_params)
+        x_manip[family] = executor.observe(seed=seed)
+        params[family] = dict(env.scene_params)
     extents = {f: [m.extents for m in S.scene_meshes("sweep_mixed", p)] for f, p in params.items()}
     assert extents[0][1][1] > extents[0][1][0] + 0.03  # the patch: long across X (family 0) ...
     assert extents[1][1][0] > extents[1][1][1] + 0.03  # ... long across Y (family 1)
@@ -151,7 +143,7 @@ def test_x_tells_the_families_apart(sweep_env, sweep_executor, pointnet_path) ->
 
 
 @pytest.mark.sim
-def test_open_fingers_and_cubes_that_cannot_move_fail_on_both_families(sweep_env, sweep_executor,
+def test_open_fingers_and_cubes_that_cannot_move_fail_on_both_families(env, executor,
                                                                        monkeypatch) -> None:
     """The base task's honesty rules hold on the variant: each family's expert with its grasp's closed posture
     replaced by the open one (limp fingers) sweeps no cube, nor does it on cubes of a tonne each (an immovable
@@ -171,20 +163,20 @@ def test_open_fingers_and_cubes_that_cannot_move_fail_on_both_families(sweep_env
         with monkeypatch.context() as m:
             closed = ex.GRASP_POSTURES[posture]
             m.setitem(ex.GRASP_POSTURES, posture, replace(closed, closed=closed.open))
-            sweep_executor.observe(seed=seed)
+            executor.observe(seed=seed)
             with no_state_writes(m) as writes:
-                limp = sweep_executor.run(plan)
+                limp = executor.run(plan)
             assert writes == []
-        assert sweep_env.scene_params["family"] == family
+        assert env.scene_params["family"] == family
         assert not limp.success and limp.outcome["cubes_in_zone"] == 0, (family, limp.outcome)
     heavy = tuple(replace(spec, cube_mass=(1000.0, 1000.0)) for spec in cls.families)
     monkeypatch.setattr(cls, "families", heavy)
     for family, seed in SWEEP_SEEDS.items():
-        sweep_executor.observe(seed=seed)
+        executor.observe(seed=seed)
         with no_state_writes(monkeypatch) as writes:
-            result = sweep_executor.run(cls.family_expert_plans[family])
+            result = executor.run(cls.family_expert_plans[family])
         assert writes == []
-        assert sweep_env.scene_params["family"] == family
-        assert sweep_env.scene_params["cube0_mass"] == 1000.0  # the scene was rebuilt from the patched table
+        assert env.scene_params["family"] == family
+        assert env.scene_params["cube0_mass"] == 1000.0  # the scene was rebuilt from the patched table
         assert not result.success and result.outcome["cubes_in_zone"] == 0, (family, result.outcome)
         assert result.outcome["mean_displacement_cm"] < 0.5, (family, result.outcome)

@@ -13,15 +13,8 @@ checked below)."""
 
 
 @pytest.fixture(scope="module")
-def tweeze_env(make_task_env):
+def env(make_task_env):
     return make_task_env("tweeze_mixed")
-
-
-@pytest.fixture(scope="module")
-def tweeze_executor(tweeze_env):
-    from envs.executor import PlanExecutor  # heavy: loads the simulator
-
-    return PlanExecutor(tweeze_env)
 
 
 def _cls():
@@ -49,10 +42,9 @@ def test_a_malformed_tweeze_family_is_named() -> None:
 
 # ------------------------------------------------------------------ physics
 @pytest.mark.sim
-def test_the_family_is_drawn_from_the_seed(tweeze_env) -> None:
+def test_the_family_is_drawn_from_the_seed(env) -> None:
     from envs.tasks.tweeze_mixed import LONG_DEEP, TIPS
 
-    env = tweeze_env
     seen = {}
     for seed in range(8):
         env.reset(seed=seed)
@@ -72,7 +64,7 @@ def test_the_family_is_drawn_from_the_seed(tweeze_env) -> None:
 
 
 @pytest.mark.sim
-def test_each_family_needs_its_own_plan(tweeze_env, tweeze_executor, monkeypatch) -> None:
+def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
     """On a scene of each family its expert lifts the cube with the tips (no hand link ever touching it) and the
     other family's expert does not (measured on 30 scenes of each family: own expert 30/30 and 30/30; the family 1
     expert 0/30 on family 0; the family 0 expert touches the deep cube on most family 1 scenes). Nothing is
@@ -81,19 +73,19 @@ def test_each_family_needs_its_own_plan(tweeze_env, tweeze_executor, monkeypatch
 
     plans = _cls().family_expert_plans
     for family, seed in TWEEZE_SEEDS.items():
-        tweeze_executor.observe(seed=seed)
-        assert tweeze_env.scene_params["family"] == family
+        executor.observe(seed=seed)
+        assert env.scene_params["family"] == family
         with no_state_writes(monkeypatch) as writes:
-            own = tweeze_executor.run(plans[family])
+            own = executor.run(plans[family])
         assert writes == []
         assert own.success and own.outcome["cube_lift_cm"] > 10.0, (family, own.outcome)
         assert not own.outcome["hand_touches_cube"], (family, own.outcome)
-        other = tweeze_executor.run(plans[1 - family], seed=seed)
+        other = executor.run(plans[1 - family], seed=seed)
         assert not other.success, (family, other.outcome)
 
 
 @pytest.mark.sim
-def test_x_tells_the_families_apart(tweeze_env, tweeze_executor, pointnet_path) -> None:
+def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """The meshes rebuilt from scene_params (the base task's builders) differ in size between the families (the
     tweezers' length in the tool cloud, the cube's edge in the object's), as do their PointNet features; and
     x_manip's recorded poses place the cube much deeper between the arms in family 1 (the family index is in no
@@ -105,8 +97,8 @@ def test_x_tells_the_families_apart(tweeze_env, tweeze_executor, pointnet_path) 
 
     params, x_manip = {}, {}
     for family, seed in TWEEZE_SEEDS.items():
-        x_manip[family] = tweeze_executor.observe(seed=seed)
-        params[family] = dict(tweeze_env.scene_params)
+        x_manip[family] = executor.observe(seed=seed)
+        params[family] = dict(env.scene_params)
     extents = {f: [m.extents for m in S.scene_meshes("tweeze_mixed", p)] for f, p in params.items()}
     assert extents[0][0][0] < 0.19 and extents[1][0][0] > 0.25  # the tweezers' length (arms + butt)
     assert extents[0][1][0] < 0.0251 and extents[1][1][0] > 0.0239  # the cube's edge (2.0-2.5 cm, 2.4-2.7 cm)
@@ -135,7 +127,7 @@ def test_x_tells_the_families_apart(tweeze_env, tweeze_executor, pointnet_path) 
 
 
 @pytest.mark.sim
-def test_open_fingers_and_a_cube_that_cannot_be_lifted_fail_on_both_families(tweeze_env, tweeze_executor,
+def test_open_fingers_and_a_cube_that_cannot_be_lifted_fail_on_both_families(env, executor,
                                                                             monkeypatch) -> None:
     """The base task's honesty rules hold on the variant: each family's expert with its grasp's closed posture
     replaced by the open one (limp fingers) does not lift the cube, nor does it lift a 2 kg cube (an object the
@@ -155,19 +147,19 @@ def test_open_fingers_and_a_cube_that_cannot_be_lifted_fail_on_both_families(twe
         with monkeypatch.context() as m:
             closed = ex.GRASP_POSTURES[posture]
             m.setitem(ex.GRASP_POSTURES, posture, replace(closed, closed=closed.open))
-            tweeze_executor.observe(seed=seed)
+            executor.observe(seed=seed)
             with no_state_writes(m) as writes:
-                limp = tweeze_executor.run(plan)
+                limp = executor.run(plan)
             assert writes == []
-        assert tweeze_env.scene_params["family"] == family
+        assert env.scene_params["family"] == family
         assert not limp.success and limp.outcome["cube_lift_cm"] < 10.0, (family, limp.outcome)
     heavy = tuple(replace(spec, cube_mass=(2.0, 2.0)) for spec in cls.families)
     monkeypatch.setattr(cls, "families", heavy)
     for family, seed in TWEEZE_SEEDS.items():
-        tweeze_executor.observe(seed=seed)
+        executor.observe(seed=seed)
         with no_state_writes(monkeypatch) as writes:
-            result = tweeze_executor.run(cls.family_expert_plans[family])
+            result = executor.run(cls.family_expert_plans[family])
         assert writes == []
-        assert tweeze_env.scene_params["family"] == family
-        assert tweeze_env.scene_params["cube_mass"] == 2.0  # the scene was rebuilt from the patched table
+        assert env.scene_params["family"] == family
+        assert env.scene_params["cube_mass"] == 2.0  # the scene was rebuilt from the patched table
         assert not result.success and result.outcome["cube_lift_cm"] < 10.0, (family, result.outcome)

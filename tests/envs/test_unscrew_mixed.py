@@ -12,15 +12,8 @@ UNSCREW_SEEDS = {0: 0, 1: 1}
 
 
 @pytest.fixture(scope="module")
-def unscrew_env(make_task_env):
+def env(make_task_env):
     return make_task_env("unscrew_mixed")
-
-
-@pytest.fixture(scope="module")
-def unscrew_executor(unscrew_env):
-    from envs.executor import PlanExecutor  # heavy: loads the simulator
-
-    return PlanExecutor(unscrew_env)
 
 
 def _cls():
@@ -42,8 +35,7 @@ def test_a_malformed_cap_family_is_named() -> None:
 
 # ------------------------------------------------------------------ physics
 @pytest.mark.sim
-def test_the_family_is_drawn_from_the_seed(unscrew_env) -> None:
-    env = unscrew_env
+def test_the_family_is_drawn_from_the_seed(env) -> None:
     seen = {}
     for seed in range(8):
         env.reset(seed=seed)
@@ -65,25 +57,25 @@ def test_the_family_is_drawn_from_the_seed(unscrew_env) -> None:
 
 
 @pytest.mark.sim
-def test_each_family_needs_its_own_plan(unscrew_env, unscrew_executor, monkeypatch) -> None:
+def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
     """On a scene of each family its expert opens the cap and the other family's expert does not (measured on 30
     scenes of each family: own expert 30/30 and 30/30, the other's 0/30 and 0/30)."""
     from honesty import no_state_writes
 
     plans = _cls().family_expert_plans
     for family, seed in UNSCREW_SEEDS.items():
-        unscrew_executor.observe(seed=seed)
-        assert unscrew_env.scene_params["family"] == family
+        executor.observe(seed=seed)
+        assert env.scene_params["family"] == family
         with no_state_writes(monkeypatch) as writes:
-            own = unscrew_executor.run(plans[family])
+            own = executor.run(plans[family])
         assert writes == []
         assert own.success and own.outcome["cap_turn_deg"] > 8.0 and own.outcome["gripped"], (family, own.outcome)
-        other = unscrew_executor.run(plans[1 - family], seed=seed)
+        other = executor.run(plans[1 - family], seed=seed)
         assert not other.success, (family, other.outcome)
 
 
 @pytest.mark.sim
-def test_x_tells_the_families_apart(unscrew_env, unscrew_executor, pointnet_path) -> None:
+def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """The meshes rebuilt from scene_params (the base task's builders) differ in size between the families: the
     cap across (tool cloud) and the body across (object cloud); so do their PointNet features. x_manip is
     recorded for both (the family index is in no part of x)."""
@@ -93,8 +85,8 @@ def test_x_tells_the_families_apart(unscrew_env, unscrew_executor, pointnet_path
 
     params, x_manip = {}, {}
     for family, seed in UNSCREW_SEEDS.items():
-        x_manip[family] = unscrew_executor.observe(seed=seed)
-        params[family] = dict(unscrew_env.scene_params)
+        x_manip[family] = executor.observe(seed=seed)
+        params[family] = dict(env.scene_params)
     extents = {f: [m.extents for m in S.scene_meshes("unscrew_mixed", p)] for f, p in params.items()}
     assert extents[0][0][0] < 0.035 and extents[1][0][0] > 0.06  # the cap across: a small cap, a wide lid
     assert extents[0][1][0] > 0.10 and extents[1][1][0] < 0.06  # the body across: a wide flask, a narrow bottle
@@ -109,7 +101,7 @@ def test_x_tells_the_families_apart(unscrew_env, unscrew_executor, pointnet_path
 
 
 @pytest.mark.sim
-def test_open_fingers_and_a_cap_that_cannot_turn_fail_on_both_families(unscrew_env, unscrew_executor,
+def test_open_fingers_and_a_cap_that_cannot_turn_fail_on_both_families(env, executor,
                                                                        monkeypatch) -> None:
     """The base task's honesty rules hold on the variant: each family's expert with its grasp's closed posture
     replaced by the open one (limp fingers) does not open the cap, nor does it on a cap whose thread holds 1000 N m
@@ -129,16 +121,16 @@ def test_open_fingers_and_a_cap_that_cannot_turn_fail_on_both_families(unscrew_e
         with monkeypatch.context() as m:
             closed = ex.GRASP_POSTURES[posture]
             m.setitem(ex.GRASP_POSTURES, posture, replace(closed, closed=closed.open))
-            unscrew_executor.observe(seed=seed)
+            executor.observe(seed=seed)
             with no_state_writes(m) as writes:
-                limp = unscrew_executor.run(plan)
+                limp = executor.run(plan)
             assert writes == []
-        assert unscrew_env.scene_params["family"] == family
+        assert env.scene_params["family"] == family
         assert not limp.success and abs(limp.outcome["cap_turn_deg"]) < 8.0, (family, limp.outcome)
     stuck = tuple(replace(spec, breakaway_torque=(1000.0, 1000.0)) for spec in cls.families)
     monkeypatch.setattr(cls, "families", stuck)
     for family, seed in UNSCREW_SEEDS.items():
-        result = unscrew_executor.run(cls.family_expert_plans[family], seed=seed)
-        assert unscrew_env.scene_params["family"] == family
-        assert unscrew_env.scene_params["breakaway_torque"] == 1000.0  # the scene was rebuilt from the patched table
+        result = executor.run(cls.family_expert_plans[family], seed=seed)
+        assert env.scene_params["family"] == family
+        assert env.scene_params["breakaway_torque"] == 1000.0  # the scene was rebuilt from the patched table
         assert not result.success and abs(result.outcome["cap_turn_deg"]) < 8.0, (family, result.outcome)
