@@ -61,6 +61,11 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
         mlflow.log_metrics({f"val_accuracy/{name}": a for name, a in acc.items()})
         print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in acc.items()))
         groups = figure_groups(data["tasks"], data["families"])
+        counts = demo_counts(groups, weights)
+        mlflow.log_metrics({f"{key}/{name.replace(' ', '_')}": v for name, (n, ess) in counts.items()
+                            for key, v in (("n_demos", n), ("demo_weight_ess", ess))})
+        print("RN demos (effective sample size of their weights): "
+              + ", ".join(f"{name} {n} ({ess:.0f})" for name, (n, ess) in counts.items()))
         val_groups = {name: np.intersect1d(rows, val) for name, rows in groups.items()}
         val_groups = {name: rows for name, rows in val_groups.items() if len(rows)}
         for name, rows in val_groups.items():
@@ -98,6 +103,12 @@ def figure_groups(tasks: list[str], families: list[int]) -> dict[str, np.ndarray
         for f in sorted({int(v) for v in fam_arr[rows] if v >= 0}):
             groups[f"{t} family {f}"] = rows[fam_arr[rows] == f]
     return groups
+
+
+def demo_counts(groups: dict[str, np.ndarray], weights: np.ndarray) -> dict[str, tuple[int, float]]:
+    """Each Fig 7 group's number of demos and the effective sample size of their weights (prior / proposal,
+    ``prl.stats.effective_sample_size``): how much the RN has to learn a task, or a mixed variant's family, from."""
+    return {name: (len(rows), effective_sample_size(weights[rows])) for name, rows in groups.items()}
 
 
 def log_registered_rn(model: Any, x_example: np.ndarray, x_check: np.ndarray) -> float:

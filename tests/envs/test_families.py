@@ -53,6 +53,19 @@ def test_fig7_rows_put_a_mixed_variants_families_apart() -> None:
         figure_groups(["a", "b", "c"], [0, 1])
 
 
+def test_demo_counts_per_family_with_their_effective_sample_size() -> None:
+    import numpy as np
+
+    from flows.train_rn import demo_counts, figure_groups
+
+    groups = figure_groups(["unscrew_mixed"] * 3, [0, 1, 1])
+    counts = demo_counts(groups, np.array([2.0, 1.0, 3.0]))
+    # Kish by hand: all (2+1+3)^2 / (4+1+9) = 36/14; family 0 one demo; family 1 (1+3)^2 / (1+9) = 1.6
+    assert counts["unscrew_mixed"][0] == 3 and abs(counts["unscrew_mixed"][1] - 36 / 14) < 1e-12
+    assert counts["unscrew_mixed family 0"] == (1, 1.0)
+    assert counts["unscrew_mixed family 1"][0] == 2 and abs(counts["unscrew_mixed family 1"][1] - 1.6) < 1e-12
+
+
 def test_the_rn_evaluation_reports_each_family(monkeypatch, capsys) -> None:
     """log_rn_eval with an oracle kind: per-family successes of every kind, printed and logged, by hand."""
     import mlflow
