@@ -11,7 +11,8 @@ each family's hand-written plan. Here, as references (never as a policy's input)
   variant's demos (the target of #26: <= 60%, so that a network must read x to do better).
 
 ``python -m envs.families --task unscrew_mixed --scenes 50 [--dataset-root D --repo-id R] [--top 20]`` prints them
-on the pipeline's trial scenes with 95% Wilson intervals, per family.
+on the pipeline's trial scenes with 95% Wilson intervals, per family; with ``--uniform`` it prints instead the
+uniformly random plans of ``python -m envs.trials --kinds uniform`` (the same plans on the same scenes) per family.
 """
 
 from __future__ import annotations
@@ -66,6 +67,25 @@ def family_outcomes(task: str, seeds: Sequence[int], n_frames: int = EPISODE_FRA
         out[f"family {k} expert"] = ran.get(plan) or run_trials(task, [plan] * len(seeds), list(seeds),
                                                                 n_frames=n_frames, randomization=randomization)
     return out
+
+
+def uniform_outcomes(task: str, n: int, run_seed: int = 0, randomization: float = 1.0) -> tuple[list[Any], list[int]]:
+    """The uniformly random plans of ``python -m envs.trials --task <task> --scenes <n> --kinds uniform`` on its
+    scenes (the same plans and scene seeds, so the same outcomes), and each scene's family, read from the scene
+    after its reset as a reference may (-1 where the reset raised): the issue's "uniform plans <= 10%", per family."""
+    from envs.trials import kind_seed, plan_set, run_policy, trial_scene_seeds  # heavy: loads the simulator
+
+    seed = kind_seed(run_seed, "uniform")
+    plans = plan_set(task, "uniform", n, seed)
+    family: dict[int, int] = {}
+
+    def policy(i: int, env: Any, x_manip: Any) -> tuple[int, ...]:
+        family[i] = int(env.scene_params["family"])
+        return plans[i]
+
+    outcomes = run_policy(task, policy, trial_scene_seeds(seed, n), randomization=randomization,
+                          desc=f"{task} uniform plans")
+    return outcomes, [family.get(i, -1) for i in range(n)]
 
 
 def families_of_oracle(task: str, oracle: Sequence[Any]) -> list[int]:
@@ -124,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
                                                               "join the fixed plans")
     parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: prl/<directory name>)")
     parser.add_argument("--top", type=int, default=20, help="the most frequent demo plans tried")
+    parser.add_argument("--uniform", action="store_true",
+                        help="instead of the family table: the uniformly random plans of `python -m envs.trials "
+                             "--kinds uniform` on its --scenes scenes, their successes per family")
     args = parser.parse_args(argv)
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
@@ -135,10 +158,18 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     if plans is None:
         parser.error(f"task {args.task!r} has no scene families (no family_expert_plans)")
+    if args.uniform and args.dataset_root is not None:
+        parser.error("--uniform runs the uniform plans instead of the family table: drop --dataset-root")
     if args.dataset_root is not None and not (Path(args.dataset_root) / "meta" / "info.json").is_file():
         parser.error(f"--dataset-root {args.dataset_root!r}: no exported dataset there (meta/info.json missing)")
     from envs.trials import run_trials, trial_scene_seeds  # heavy: loads the simulator
 
+    if args.uniform:
+        outs, families = uniform_outcomes(args.task, args.scenes, args.seed)
+        print(f"{args.task}: uniform plans on the {args.scenes} scenes of `python -m envs.trials --kinds uniform` "
+              f"(families: {dict(sorted(Counter(families).items()))})")
+        print(family_line("uniform plans", outs, families))
+        return 0
     seeds = trial_scene_seeds(args.seed, args.scenes)
     out = family_outcomes(args.task, seeds)
     families = families_of_oracle(args.task, out["oracle"])

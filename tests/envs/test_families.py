@@ -114,7 +114,9 @@ def test_the_command_names_bad_input(capsys) -> None:
                         (["--task", "hamer"], "unknown task 'hamer'"),
                         (["--task", "unscrew_mixed", "--scenes", "0"], "--scenes must be >= 1, got 0"),
                         (["--task", "unscrew_mixed", "--dataset-root", "/nonexistent/d"],
-                         "no exported dataset there")):
+                         "no exported dataset there"),
+                        (["--task", "unscrew_mixed", "--uniform", "--dataset-root", "/nonexistent/d"],
+                         "--uniform runs the uniform plans instead of the family table")):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2 and named in capsys.readouterr().err, argv
@@ -132,3 +134,19 @@ def test_the_command_prints_the_oracle_and_the_best_fixed_plan(capsys) -> None:
     assert "1/2 = 0.50" in out[2] and out[2].endswith("family 0: 1/1; family 1: 0/1")
     assert "1/2 = 0.50" in out[3] and out[3].endswith("family 0: 0/1; family 1: 1/1")
     assert out[4].startswith("best single fixed plan of 2: family 0 expert")
+
+
+@pytest.mark.sim
+def test_uniform_plans_are_the_trials_own_split_per_family() -> None:
+    """The uniform plans on the scenes of `envs.trials --kinds uniform`: the same outcomes as the trials, and each
+    scene's family the one the oracle reads back on that scene."""
+    from envs.families import families_of_oracle, oracle_outcomes, uniform_outcomes
+    from envs.trials import kind_seed, plan_set, run_trials, trial_scene_seeds
+
+    outcomes, families = uniform_outcomes("unscrew_mixed", 3)
+    seed = kind_seed(0, "uniform")
+    seeds = trial_scene_seeds(seed, 3)
+    trials = run_trials("unscrew_mixed", plan_set("unscrew_mixed", "uniform", 3, seed), seeds, progress=False)
+    assert [(o.seed, o.plan, o.success) for o in outcomes] == [(o.seed, o.plan, o.success) for o in trials]
+    assert families == families_of_oracle("unscrew_mixed", oracle_outcomes("unscrew_mixed", seeds))
+    assert set(families) <= {0, 1}
