@@ -136,7 +136,8 @@ def demo_plans(dataset_root: str, repo_id: str, task: str) -> list[tuple[int, ..
 
 def main(argv: list[str] | None = None) -> int:
     """The family table of one mixed variant on the pipeline's trial scenes (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m envs.families", description=" ".join(__doc__.split("\n\n")[0].split()))
+    summary = " ".join(__doc__.split("\n\n")[0].split())  # the docstring's first paragraph
+    parser = argparse.ArgumentParser(prog="python -m envs.families", description=summary)
     parser.add_argument("--task", required=True, help="a mixed variant, e.g. unscrew_mixed")
     parser.add_argument("--scenes", type=int, default=50, help="trial scenes (the pipeline's, run seed --seed)")
     parser.add_argument("--seed", type=int, default=0, help="the run seed the trial scenes derive from")

@@ -94,9 +94,7 @@ def test_the_rn_evaluation_reports_each_family(monkeypatch, capsys) -> None:
 
 @pytest.mark.sim
 def test_the_oracle_runs_each_scenes_own_family_plan() -> None:
-    from envs.families import oracle_outcomes
-
-    from envs.families import families_of_oracle
+    from envs.families import families_of_oracle, oracle_outcomes
 
     outcomes = oracle_outcomes("unscrew_mixed", [0, 1])
     families = families_of_oracle("unscrew_mixed", outcomes)
