@@ -1,0 +1,165 @@
+"""Does the adaptive proposal change what the RN learns? Two pipeline runs of one task, side by side.
+
+Issue #28's check of the weights (``prl.proposal``): an RN trained on demos synthesised with the adaptive proposal,
+each weighted by prior / proposal, should learn what an RN trained on prior-only demos learns. Given the output
+directories of two runs of ``python -m flows.full_pipeline --tasks T --train-rn`` that differ only in
+``--proposal prior`` and ``--proposal adaptive``, this reads both datasets back (``lerobot``), encodes them with
+their PointNet, and sets side by side three RNs:
+
+- ``prior``: the prior run's RN (``models/rn-seed<S>.pt``), trained on unweighted prior-only demos;
+- ``adaptive, weighted``: the adaptive run's RN, trained with the weights (what the pipeline does);
+- ``adaptive, raw``: an RN trained here on the adaptive run's demos with the weights left out (same settings and
+  split), to show what the weights correct.
+
+Reported:
+
+1. Fig 7's bars (each choice's mean predicted probability per dimension) on one common set of inputs, the prior
+   run's held-out demos, and on each run's own held-out demos weighted as the pipeline draws Fig 7; per dimension
+   the largest difference from the prior RN's bars (the target: < 0.1 with the weights);
+2. each RN's argmax plan executed on the same unseen scenes (``envs.trials.eval_scene_seeds``), with 95% Wilson
+   intervals (the target: the intervals of the weighted and the prior RN overlap);
+3. ``<out>/proposal_rn_fig7.png``: the three RNs' Fig 7 on the common inputs, one row each.
+
+``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
+[--markdown docs/proposal_rn.md]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):  # ``python bench/bench_proposal_rn.py``
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from prl.config import PipelineConfig
+from prl.stats import effective_sample_size, format_rate, wilson_interval
+
+
+def bar_gaps(probs_a: Sequence[np.ndarray], probs_b: Sequence[np.ndarray],
+             weights_a: Sequence[float] | None = None, weights_b: Sequence[float] | None = None) -> list[float]:
+    """Per dimension, the largest absolute difference between the Fig 7 bars (weighted mean probability of each
+    choice over the samples, ``prl.rn_decode.key_dimensions``) of two sets of per-dimension probabilities."""
+    from prl.rn_decode import key_dimensions  # why: torch behind it, not needed for --help
+
+    if len(probs_a) != len(probs_b):
+        raise ValueError(f"{len(probs_a)} dimensions against {len(probs_b)}")
+    bars_a = key_dimensions(probs_a, weights=weights_a)
+    bars_b = key_dimensions(probs_b, weights=weights_b)
+    return [float(np.abs(a.mean_probs - b.mean_probs).max()) for a, b in zip(bars_a, bars_b, strict=True)]
+
+
+def intervals_overlap(a: tuple[int, int], b: tuple[int, int]) -> bool:
+    """Whether the 95% Wilson intervals of two (successes, n) overlap."""
+    (lo_a, hi_a), (lo_b, hi_b) = wilson_interval(*a), wilson_interval(*b)
+    return lo_a <= hi_b and lo_b <= hi_a
+
+
+def run_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str, Path, Path]:
+    """(dataset root, repo id, PointNet, RN) of a pipeline run's output directory; FileNotFoundError naming what
+    is missing."""
+    repo = f"{task}-seed{seed}"
+    root = run_dir / "datasets" / repo
+    rn = run_dir / "models" / f"rn-seed{seed}.pt"
+    pointnets = sorted((run_dir / "models").glob("pointnet-*.pt"))
+    for path in (root, rn):
+        if not path.exists():
+            raise FileNotFoundError(f"{path} not found: is {run_dir} the output of a pipeline run of {task!r} with "
+                                    f"--train-rn and --seed {seed}?")
+    if len(pointnets) != 1:
+        raise FileNotFoundError(f"expected one PointNet in {run_dir / 'models'}, found {[p.name for p in pointnets]}")
+    return root, f"prl/{repo}", pointnets[0], rn
+
+
+def main(argv: list[str] | None = None) -> int:
+    # heavy: the simulator, trimesh, torch and lerobot behind these
+    from envs.trials import eval_scene_seeds
+    from flows.compute_features import rn_features
+    from flows.evaluate_rn import rn_outcomes
+    from prl.features import FEATURE_LAYOUT, split_by_seed
+    from prl.plb import load_plb
+    from prl.plots import plot_rn_probabilities
+    from prl.rn import RNConfig
+    from prl.rn_checkpoint import load_rn, save_rn
+    from prl.rn_decode import predict_proba
+    from prl.rn_train import train_rn
+
+    defaults = PipelineConfig()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--prior-dir", type=Path, required=True, help="output dir of the --proposal prior run")
+    ap.add_argument("--adaptive-dir", type=Path, required=True, help="output dir of the --proposal adaptive run")
+    ap.add_argument("--task", required=True)
+    ap.add_argument("--seed", type=int, default=0, help="the runs' --seed")
+    ap.add_argument("--scenes", type=int, default=50, help="unseen scenes each RN's plan is executed on")
+    ap.add_argument("--rn-epochs", type=int, default=200, help="epochs of the raw RN (the paper profile's 200)")
+    ap.add_argument("--val-fraction", type=float, default=defaults.rn_val_fraction)
+    ap.add_argument("--out", type=Path, default=Path("outputs/bench_proposal_rn"))
+    ap.add_argument("--markdown", type=Path, help="also write the report to this file")
+    args = ap.parse_args(argv)
+
+    plb = load_plb()
+    prior_in = run_inputs(args.prior_dir, args.task, args.seed)
+    adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
+    data, models = {}, {}
+    for name, (root, repo, pointnet, rn) in (("prior", prior_in), ("adaptive", adapt_in)):
+        d = rn_features(root, repo, pointnet, defaults.n_points)
+        d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=args.seed)
+        data[name] = d
+    models["prior"] = load_rn(prior_in[3])
+    models["adaptive, weighted"] = load_rn(adapt_in[3])
+    a = data["adaptive"]
+    raw, _ = train_rn(a["x"][a["train"]], a["plan"][a["train"]], RNConfig(epochs=args.rn_epochs, seed=args.seed),
+                      a["x"][a["val"]], a["plan"][a["val"]])
+    args.out.mkdir(parents=True, exist_ok=True)
+    raw_path = save_rn(raw, RNConfig(epochs=args.rn_epochs, seed=args.seed), FEATURE_LAYOUT,
+                       args.out / f"rn-{args.task}-adaptive-raw.pt")
+    models["adaptive, raw"] = raw
+    paths = {"prior": prior_in[3], "adaptive, weighted": adapt_in[3], "adaptive, raw": raw_path}
+    pointnets = {"prior": prior_in[2], "adaptive, weighted": adapt_in[2], "adaptive, raw": adapt_in[2]}
+
+    p = data["prior"]
+    common = p["x"][p["val"]]
+    probs = {name: predict_proba(m, common) for name, m in models.items()}
+    own = {"prior": (predict_proba(models["prior"], common), None),
+           "adaptive, weighted": (predict_proba(models["adaptive, weighted"], a["x"][a["val"]]), a["weights"][a["val"]]),
+           "adaptive, raw": (predict_proba(raw, a["x"][a["val"]]), None)}
+    seeds = eval_scene_seeds(args.seed, args.scenes)
+    outcomes = {name: rn_outcomes(paths[name], pointnets[name], args.task, seeds, defaults.n_points,
+                                  defaults.episode_frames, 1.0, ("rn",))["rn"] for name in models}
+    wins = {name: (sum(o.success for o in out), len(out)) for name, out in outcomes.items()}
+
+    dims = ", ".join(plb.dim_names)
+    lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
+             f"(`python -m bench.bench_proposal_rn`)."), "",
+             f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
+             (f"- adaptive run `{args.adaptive_dir}`: {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
+             f"size of their weights {effective_sample_size(a['weights']):.0f}, largest weight "
+             f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"), "",
+             (f"| RN | largest Fig 7 bar difference from the prior RN per dimension ({dims}), common inputs | "
+             f"the same, each run's own held-out demos | argmax plan on {args.scenes} unseen scenes (95% CI) |"),
+             "|---|---|---|---|"]
+    for name in models:
+        gap = bar_gaps(probs[name], probs["prior"])
+        gap_own = bar_gaps(own[name][0], own["prior"][0], own[name][1])
+        overlap = "" if name == "prior" else (" (overlaps the prior RN's)" if intervals_overlap(wins[name], wins["prior"])
+                                              else " (does not overlap the prior RN's)")
+        lines.append(f"| {name} | {' '.join(f'{g:.2f}' for g in gap)} (max {max(gap):.2f}) | "
+                     f"{' '.join(f'{g:.2f}' for g in gap_own)} (max {max(gap_own):.2f}) | "
+                     f"{format_rate(*wins[name])}{overlap} |")
+    fig_path = args.out / "proposal_rn_fig7.png"
+    plot_rn_probabilities({f"{args.task}: {name}": pr for name, pr in probs.items()}, plb.dim_names,
+                          [d.choices for d in plb.dims], fig_path)
+    lines += ["", f"Fig 7 of the three RNs on the common inputs: `{fig_path}`."]
+    report = "\n".join(lines) + "\n"
+    print(report)
+    if args.markdown:
+        args.markdown.write_text(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

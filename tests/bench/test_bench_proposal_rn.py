@@ -1,0 +1,41 @@
+"""The pure parts of ``bench.bench_proposal_rn`` on hand-computed cases."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.bench_proposal_rn import bar_gaps, intervals_overlap, run_inputs
+
+
+def test_bar_gaps_are_the_largest_difference_of_the_mean_probabilities() -> None:
+    # dimension 0: means (0.5, 0.5) against (0.8, 0.2) -> 0.3; dimension 1: (0.2, 0.3, 0.5) against itself -> 0
+    a = [np.array([[0.9, 0.1], [0.1, 0.9]]), np.array([[0.2, 0.3, 0.5]] * 2)]
+    b = [np.array([[0.8, 0.2], [0.8, 0.2]]), np.array([[0.2, 0.3, 0.5]] * 2)]
+    assert bar_gaps(a, b) == pytest.approx([0.3, 0.0])
+
+
+def test_bar_gaps_weigh_the_first_set() -> None:
+    # weights 3:1 -> means (0.7, 0.3) against (0.8, 0.2): 0.1
+    a = [np.array([[0.9, 0.1], [0.1, 0.9]])]
+    b = [np.array([[0.8, 0.2]])]
+    assert bar_gaps(a, b, weights_a=[3.0, 1.0]) == pytest.approx([0.1])
+
+
+def test_bar_gaps_name_a_dimension_mismatch() -> None:
+    with pytest.raises(ValueError, match="2 dimensions against 1"):
+        bar_gaps([np.ones((1, 2)) / 2] * 2, [np.ones((1, 2)) / 2])
+
+
+def test_intervals_overlap() -> None:
+    # 25/50: Wilson 0.366-0.634; 45/50: 0.786-0.957; 35/50: 0.562-0.809
+    assert not intervals_overlap((25, 50), (45, 50))
+    assert intervals_overlap((35, 50), (45, 50))
+    assert intervals_overlap((25, 50), (35, 50))
+
+
+def test_run_inputs_name_a_missing_run(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="datasets/hammer-seed0 not found"):
+        run_inputs(tmp_path, "hammer", 0)
