@@ -4,9 +4,11 @@ Issue #28's check of the weights (``prl.proposal``): an RN trained on demos synt
 each weighted by prior / proposal, should learn what an RN trained on prior-only demos learns. Given the output
 directories of two runs of ``python -m flows.full_pipeline --tasks T --train-rn`` that differ only in
 ``--proposal prior`` and ``--proposal adaptive``, this reads both datasets back (``lerobot``), encodes them with
-their PointNet, and sets side by side three RNs:
+their PointNet, and sets side by side four RNs:
 
 - ``prior``: the prior run's RN (``models/rn-seed<S>.pt``), trained on unweighted prior-only demos;
+- ``prior, another init seed``: an RN trained here on the same demos from another initialisation, the floor of
+  what differs between two RNs of the same data;
 - ``adaptive, weighted``: the adaptive run's RN, trained with the weights (what the pipeline does);
 - ``adaptive, raw``: an RN trained here on the adaptive run's demos with the weights left out (same settings and
   split), to show what the weights correct.
@@ -18,7 +20,8 @@ Reported:
    the largest difference from the prior RN's bars (the target: < 0.1 with the weights);
 2. each RN's argmax plan executed on the same unseen scenes (``envs.trials.eval_scene_seeds``), with 95% Wilson
    intervals (the target: the intervals of the weighted and the prior RN overlap);
-3. ``<out>/proposal_rn_fig7.png``: the three RNs' Fig 7 on the common inputs, one row each.
+3. the RNs' Fig 7 on the common inputs, one row each: ``<markdown stem>_fig7.png`` beside ``--markdown``, else
+   ``<out>/proposal_rn_fig7.png`` (the RNs trained here are saved under ``--out``).
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
 [--markdown docs/proposal_rn.md]``
@@ -104,29 +107,30 @@ def main(argv: list[str] | None = None) -> int:
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed)
     adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
-    data, models = {}, {}
+    data = {}
     for name, (root, repo, pointnet, rn) in (("prior", prior_in), ("adaptive", adapt_in)):
         d = rn_features(root, repo, pointnet, defaults.n_points)
         d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=args.seed)
         data[name] = d
-    models["prior"] = load_rn(prior_in[3])
-    models["adaptive, weighted"] = load_rn(adapt_in[3])
-    a = data["adaptive"]
-    raw, _ = train_rn(a["x"][a["train"]], a["plan"][a["train"]], RNConfig(epochs=args.rn_epochs, seed=args.seed),
-                      a["x"][a["val"]], a["plan"][a["val"]])
+    p, a = data["prior"], data["adaptive"]
     args.out.mkdir(parents=True, exist_ok=True)
-    raw_path = save_rn(raw, RNConfig(epochs=args.rn_epochs, seed=args.seed), FEATURE_LAYOUT,
-                       args.out / f"rn-{args.task}-adaptive-raw.pt")
-    models["adaptive, raw"] = raw
-    paths = {"prior": prior_in[3], "adaptive, weighted": adapt_in[3], "adaptive, raw": raw_path}
-    pointnets = {"prior": prior_in[2], "adaptive, weighted": adapt_in[2], "adaptive, raw": adapt_in[2]}
 
-    p = data["prior"]
+    def trained_here(d: dict, name: str, init_seed: int) -> Path:
+        """An RN trained here on ``d``'s training demos, unweighted, saved under ``--out``."""
+        cfg = RNConfig(epochs=args.rn_epochs, seed=init_seed)
+        model, _ = train_rn(d["x"][d["train"]], d["plan"][d["train"]], cfg, d["x"][d["val"]], d["plan"][d["val"]])
+        return save_rn(model, cfg, FEATURE_LAYOUT, args.out / f"rn-{args.task}-{name}.pt")
+
+    paths = {"prior": prior_in[3], "prior, another init seed": trained_here(p, "prior-reseeded", args.seed + 1),
+             "adaptive, weighted": adapt_in[3], "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
+    pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
+                 "adaptive, raw": adapt_in[2]}
+    models = {name: load_rn(path) for name, path in paths.items()}
     common = p["x"][p["val"]]
     probs = {name: predict_proba(m, common) for name, m in models.items()}
-    own = {"prior": (predict_proba(models["prior"], common), None),
-           "adaptive, weighted": (predict_proba(models["adaptive, weighted"], a["x"][a["val"]]), a["weights"][a["val"]]),
-           "adaptive, raw": (predict_proba(raw, a["x"][a["val"]]), None)}
+    own = {name: (probs[name], None) if name.startswith("prior") else
+           (predict_proba(m, a["x"][a["val"]]), a["weights"][a["val"]] if name == "adaptive, weighted" else None)
+           for name, m in models.items()}
     seeds = eval_scene_seeds(args.seed, args.scenes)
     outcomes = {name: rn_outcomes(paths[name], pointnets[name], args.task, seeds, defaults.n_points,
                                   defaults.episode_frames, 1.0, ("rn",))["rn"] for name in models}
@@ -150,10 +154,12 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {name} | {' '.join(f'{g:.2f}' for g in gap)} (max {max(gap):.2f}) | "
                      f"{' '.join(f'{g:.2f}' for g in gap_own)} (max {max(gap_own):.2f}) | "
                      f"{format_rate(*wins[name])}{overlap} |")
-    fig_path = args.out / "proposal_rn_fig7.png"
+    fig_path = (args.markdown.with_name(f"{args.markdown.stem}_fig7.png") if args.markdown
+                else args.out / "proposal_rn_fig7.png")
     plot_rn_probabilities({f"{args.task}: {name}": pr for name, pr in probs.items()}, plb.dim_names,
                           [d.choices for d in plb.dims], fig_path)
-    lines += ["", f"Fig 7 of the three RNs on the common inputs: `{fig_path}`."]
+    lines += ["", f"![Fig 7 of the RNs on the common inputs]({fig_path.name})" if args.markdown else
+              f"Fig 7 of the RNs on the common inputs: `{fig_path}`."]
     report = "\n".join(lines) + "\n"
     print(report)
     if args.markdown:
