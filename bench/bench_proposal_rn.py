@@ -24,7 +24,7 @@ Reported:
    ``<out>/proposal_rn_fig7.png`` (the RNs trained here are saved under ``--out``).
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--markdown docs/proposal_rn.md]``
+[--markdown docs/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
