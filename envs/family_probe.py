@@ -70,12 +70,13 @@ def probe(task: str, family: int, changes: Mapping[str, Range], plans: Sequence[
           seeds: Sequence[int]) -> dict[tuple[int, ...], list[Any]]:
     """Each plan's outcomes (``envs.trials.TrialOutcome``) on ``seeds``' scenes, all drawn from the changed
     family. ValueError for a task without families or a bad plan (``prl.plb``)."""
-    from envs.tasks import task_class  # heavy: loads the simulator
+    from envs.families import family_plans  # heavy: loads the simulator
+    from envs.tasks import task_class
     from envs.trials import run_trials
 
-    cls = task_class(task)
-    if not getattr(cls, "family_expert_plans", None):
+    if family_plans(task) is None:
         raise ValueError(f"task {task!r} has no scene families (no family_expert_plans)")
+    cls = task_class(task)
     checked = [tuple(int(v) for v in validate_plan(p)) for p in plans]
     with family_ranges(cls, family, changes):
         return {plan: run_trials(task, [plan] * len(seeds), list(seeds)) for plan in checked}
