@@ -1,4 +1,5 @@
-"""The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset-root D --pointnet-path P``.
+"""The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset-root D --pointnet-path P``
+(neither for a sweep of ``--variants joint`` alone).
 
 Points = tasks x variants x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
 K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
@@ -72,7 +73,9 @@ def sweep_settings(cfg: AblationConfig) -> dict[str, Any]:
     changed = {f"ln.{f.name}": getattr(cfg.ln, f.name) for f in dataclasses.fields(LNConfig)
                if f.name not in first and f.name not in cfg.LN_SET_PER_POINT
                and getattr(cfg.ln, f.name) != getattr(paper, f.name)}
-    return {"dataset_root": str(cfg.dataset_root.resolve()), "pointnet": str(cfg.pointnet_path.resolve()),
+    paths = {name: None if getattr(cfg, name) is None else str(getattr(cfg, name).resolve())
+             for name in ("dataset_root", "pointnet_path")}
+    return {"dataset_root": paths["dataset_root"], "pointnet": paths["pointnet_path"],
             "timesteps": cfg.ln.timesteps, "eval_scenes": cfg.eval_scenes, "eval_seed": cfg.eval_seed,
             "pretrain_epochs": cfg.ln.pretrain_epochs, "n_points": cfg.n_points,
             "steps_per_update": cfg.ln.steps_per_update, **changed}
@@ -98,8 +101,10 @@ def _parent(key: str, name: str, settings: dict[str, Any]) -> Any:
 
 
 @flow(name="prl-ln-ablation", log_prints=True)
-def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into its ``output_dir``.
+def ablation(dataset_root: str | None, pointnet_path: str | None,
+             overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Run (or resume) the sweep; return ``{point name: summary}`` and draw Fig 8 into its ``output_dir``. A sweep
+    of joint control alone needs no dataset and no PointNet (None).
 
     ``overrides`` are ``prl.config.AblationConfig`` fields, the LN's nested (the command line's flags by their
     field names): e.g. ``{"seeds": [0, 1, 2], "demo_steps": [0, 1280], "ln": {"timesteps": 3200}}``.
@@ -115,8 +120,8 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
     tasks = list(cfg.tasks)
     points = sweep_points(tasks, list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))
     root = cfg.dataset_root
-    repo_id = cfg.repo_id or _repo_id_of(root)
-    scenes = read_scenes(root)  # FileNotFoundError naming a missing dataset before anything starts
+    plan_tasks = list(dict.fromkeys(p.task for p in points if p.variant != "joint"))
+    scenes = read_scenes(root) if plan_tasks else []  # FileNotFoundError naming a missing dataset, before any work
     for p in points:  # K beyond the demonstrations available (one per episode): an error before any work
         available = sum(s["task"] == p.task for s in scenes)
         if p.variant != "joint" and not available:  # the plan env's x is standardised with the demos' statistics
@@ -134,9 +139,10 @@ def ablation(dataset_root: str, pointnet_path: str, overrides: dict[str, Any] | 
     workers, dask_address = cfg.workers, cfg.dask_address
     tracking.configure("prl")
     with _parent(key, f"ln-ablation-{key}", settings) as parent:
-        if not all((setup.demo_dir / f"demos-{t}.npz").is_file() for t in tasks):
-            counts = write_demonstrations(setup.demo_dir, tasks, rn_features(root, repo_id, cfg.pointnet_path,
-                                                                             cfg.n_points))
+        if not all((setup.demo_dir / f"demos-{t}.npz").is_file() for t in plan_tasks):
+            repo_id = cfg.repo_id or _repo_id_of(root)
+            counts = write_demonstrations(setup.demo_dir, plan_tasks, rn_features(root, repo_id, cfg.pointnet_path,
+                                                                                  cfg.n_points))
             print("demonstrations per task: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
         done = finished_points(parent.info.run_id)
         summaries = {p.name: json.loads((setup.out_dir / f"{p.name}.json").read_text()) for p in points
@@ -272,8 +278,6 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(str(out / name) for name in figs))
         return 0
     dataset_root, pointnet_path = overrides.pop("dataset_root", None), overrides.pop("pointnet_path", None)
-    if not dataset_root or not pointnet_path:
-        parser.error("--dataset-root and --pointnet-path are required (unless --draw-from)")
     try:  # before any flow run or MLflow run starts
         cfg = make_ablation_config(dataset_root, pointnet_path, **overrides)
         sweep_points(list(cfg.tasks), list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))

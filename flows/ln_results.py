@@ -46,6 +46,7 @@ from prl.ln_summary import (
     read_summary,
     reuse_decision,
     summary_file_name,
+    thin_rows,
     write_summary,
 )
 from prl.version import file_digest, outcome_version
@@ -147,7 +148,7 @@ def committed_summary(summary: dict[str, Any], record: dict[str, Any], started: 
     """The committed form of ``flows.train_ln.run_point``'s ``summary``: its ``record``, the rounded curve and
     evaluation, the run id and the compute; no checkpoint (a local file) and no pre-training losses."""
     ev = summary["eval"]
-    return {**record, "name": summary["name"], "run_id": summary["run_id"], "rows": compact(summary["rows"]),
+    return {**record, "name": summary["name"], "run_id": summary["run_id"], "rows": compact(thin_rows(summary["rows"])),
             "eval": {"successes": int(ev["successes"]), "n": int(ev["n"]), "ci95": compact(list(ev["ci95"])),
                      "outcomes": compact(ev["outcomes"])},
             "train_seconds": round(float(summary["train_seconds"]), 1),

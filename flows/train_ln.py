@@ -64,8 +64,9 @@ class LNSetup:
 
     demo_dir: Path
     """Where ``write_demonstrations`` left each task's ``demos-<task>.npz``."""
-    pointnet_path: Path
-    """The PointNet that encoded the demonstrations' x (the plan env encodes live scenes with it)."""
+    pointnet_path: Path | None
+    """The PointNet that encoded the demonstrations' x (the plan env encodes live scenes with it); None where only
+    joint control runs."""
     out_dir: Path
     """Checkpoints, curves and point summaries."""
     eval_seeds: tuple[int, ...]

@@ -295,10 +295,11 @@ class AblationConfig:
     LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("demo_steps", "pretrain_mode", "seed")
     """LN settings each sweep point sets itself (demo_steps, variant, seeds): no flags."""
 
-    dataset_root: Path
-    """Exported LeRobot dataset root (the pipeline's datasets/...)."""
-    pointnet_path: Path
-    """The PointNet checkpoint the RN used (models/pointnet-*.pt)."""
+    dataset_root: Path | None = None
+    """Exported LeRobot dataset root (the pipeline's datasets/...); needed by the plan variants (physics, bc), not
+    by a sweep of joint control alone (no demonstrations, no x)."""
+    pointnet_path: Path | None = None
+    """The PointNet checkpoint the RN used (models/pointnet-*.pt); needed as ``dataset_root`` is."""
     repo_id: str | None = None
     """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
     tasks: tuple[str, ...] = ("hammer",)
@@ -331,9 +332,6 @@ class AblationConfig:
     """Every point's LN settings (the paper's; one plan env per point)."""
 
     def __post_init__(self) -> None:
-        for name in ("dataset_root", "pointnet_path"):
-            if not isinstance(getattr(self, name), (str, Path)) or not str(getattr(self, name)):
-                raise ConfigError(f"{name} must be a path, got {getattr(self, name)!r}")
         for name, known in (("tasks", known_tasks()), ("variants", LN_VARIANTS)):
             values = getattr(self, name)
             if not values:
@@ -362,8 +360,17 @@ class AblationConfig:
         if not isinstance(self.ln, LNConfig):
             raise ConfigError(f"ln must be an LNConfig, got {self.ln!r}")
         _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "by demo_steps, variants and seeds")
-        for name in ("dataset_root", "pointnet_path", "output_dir"):
-            object.__setattr__(self, name, Path(getattr(self, name)))
+        plan_variants = [v for v in self.variants if v != "joint"]
+        for name in ("dataset_root", "pointnet_path"):
+            value = getattr(self, name)
+            if value is None and plan_variants:
+                raise ConfigError(f"{name} is needed by the variants {', '.join(plan_variants)} (demonstrations and "
+                                  f"x); only a sweep of joint control alone runs without one")
+            if value is not None and (not isinstance(value, (str, Path)) or not str(value)):
+                raise ConfigError(f"{name} must be a path, got {value!r}")
+            if value is not None:
+                object.__setattr__(self, name, Path(value))
+        object.__setattr__(self, "output_dir", Path(self.output_dir))
 
 
 def _is_int(value: Any) -> bool:
@@ -413,7 +420,8 @@ def make_config(profile: str = "quick", **overrides: Any) -> PipelineConfig:
     return build_config(PipelineConfig, {"profile": profile, **PROFILES[profile]}, overrides)
 
 
-def make_ablation_config(dataset_root: str | Path, pointnet_path: str | Path, **overrides: Any) -> AblationConfig:
-    """The sweep's config: its dataset and PointNet, ``overrides`` (None values ignored) over the defaults;
-    ``ln`` as in ``make_config``."""
+def make_ablation_config(dataset_root: str | Path | None = None, pointnet_path: str | Path | None = None,
+                         **overrides: Any) -> AblationConfig:
+    """The sweep's config: its dataset and PointNet (None for a sweep of joint control alone), ``overrides`` (None
+    values ignored) over the defaults; ``ln`` as in ``make_config``."""
     return build_config(AblationConfig, {"dataset_root": dataset_root, "pointnet_path": pointnet_path}, overrides)

@@ -16,7 +16,9 @@ on any machine:
   ``pointnet_sha256`` (the PointNet file's bytes);
 - ``eval``: ``successes``, ``n``, ``ci95`` (Wilson) and ``outcomes``, one per evaluation scene (``seed``, ``plan``,
   ``success``, ``measure``, ``error``);
-- ``rows``: the training curve, one row per A2C update (``timesteps``, ``frames``, ``window_success_rate``, ...);
+- ``rows``: the training curve, one row per A2C update (``timesteps``, ``frames``, ``window_success_rate``, ...),
+  thinned evenly to at most ``MAX_ROWS`` (``thin_rows``: a joint-control run at the plan runs' frames has
+  thousands of updates);
 - ``run_id`` (the MLflow run; its store need not exist), and the compute: ``train_seconds``, ``eval_seconds``,
   ``started`` and ``finished`` (ISO 8601, UTC), ``cores`` (the processes the point kept busy: 1 with one plan
   environment, else one per environment plus the main process).
@@ -63,6 +65,8 @@ EVAL_KEYS: dict[str, type | tuple[type, ...]] = {"successes": int, "n": int, "ci
 """The keys of a summary's ``eval``."""
 OUTCOME_KEYS: dict[str, type | tuple[type, ...]] = {"seed": int, "success": bool}
 """The keys each of ``eval.outcomes`` has at least."""
+MAX_ROWS = 400
+"""Training-curve rows a summary keeps at most (``thin_rows``); the paper's 3,200 timesteps make 50."""
 ROW_KEYS: tuple[str, ...] = ("timesteps", "frames", "window_success_rate")
 """The keys each training-curve row has at least (what the report draws)."""
 REFERENCE_PREFIX = "reference-"
@@ -101,6 +105,17 @@ def compact(value: Any, digits: int | None = DIGITS) -> Any:
     if hasattr(value, "item"):  # a numpy scalar
         return compact(value.item(), digits)
     raise TypeError(f"a summary holds JSON values only, got {type(value).__name__}: {value!r}")
+
+
+def thin_rows(rows: Sequence[Any], max_rows: int = MAX_ROWS) -> list[Any]:
+    """``rows`` when there are at most ``max_rows``, else ``max_rows`` of them evenly spaced by index, the first and
+    the last among them (row ``round(i (n - 1) / (max_rows - 1))`` for i = 0 .. max_rows - 1)."""
+    if not isinstance(max_rows, int) or max_rows < 2:
+        raise ValueError(f"max_rows must be an integer >= 2, got {max_rows!r}")
+    n = len(rows)
+    if n <= max_rows:
+        return list(rows)
+    return [rows[round(i * (n - 1) / (max_rows - 1))] for i in range(max_rows)]
 
 
 def summary_bytes(summary: Mapping[str, Any]) -> bytes:

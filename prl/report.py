@@ -400,14 +400,14 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
                for t in dict.fromkeys(p.task for p in missing if p.equal_frames)]
     seeds, tail = ",".join(map(str, PLAN_SEEDS)), f"--results-dir {results_rel}"
     lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
-                  + "--pointnet-path ...`, and an `--output-dir` of each command's own; the hammer's K = 2,560 needs "
-                  + "a dataset with at least 2,560 hammer demos):",
+                  + "--pointnet-path ...`, which joint control alone does not need, and an `--output-dir` of each "
+                  + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
               "", "```",
               f"python -m flows.ablation $D --tasks {','.join(TASKS)} --variants physics,bc,joint --demo-steps "
               + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
               "python -m flows.ablation $D --tasks hammer --variants physics --demo-steps "
               + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
-              f"python -m flows.ablation $D --tasks <task> --variants joint --seeds {PLAN_SEEDS[0]} "
+              f"python -m flows.ablation --tasks <task> --variants joint --seeds {PLAN_SEEDS[0]} "
               + f"--ln-timesteps <equal-frames steps> {tail}", "```"]
     if budgets:
         lines += ["", "Equal-frames joint-control steps: " + "; ".join(budgets) + "."]

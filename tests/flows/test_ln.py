@@ -184,8 +184,8 @@ def test_fig8_redrawn_from_sweep_directories(tmp_path: Path, capsys: pytest.Capt
     assert main(["--draw-from", str(tmp_path / "nowhere"), "--output-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "no LN point summaries under" in err and "nowhere" in err
-    with pytest.raises(SystemExit):
-        main(["--tasks", "hammer"])  # a sweep needs --dataset-root and --pointnet-path
+    assert main(["--tasks", "hammer"]) == 2  # a sweep of plan variants needs --dataset-root and --pointnet-path
+    assert "dataset_root is needed by the variants physics, bc" in capsys.readouterr().err
     for d, steps in (("short", 2), ("long", 3)):  # the same joint point at two budgets, in two sweeps
         rows = [{"timesteps": float(t), "frames": 10.0 * t, "window_success_rate": 0.1 * t} for t in range(1, steps + 1)]
         (tmp_path / d / "points").mkdir(parents=True)
@@ -305,3 +305,7 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
         assert mlflow.get_run(s["run_id"]).data.tags["reevaluated_at_code"]
     assert len(mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''",
                                   output_format="list")) == 3
+    joint = ablation(None, None, {**kwargs, "variants": ["joint"], "seeds": [1], "workers": 1,
+                                  "output_dir": str(tmp_path / "joint")})  # joint control alone: no dataset
+    assert sorted(joint) == ["ln-hammer-joint-k0-seed1"] and joint["ln-hammer-joint-k0-seed1"]["eval"]["n"] == 1
+    assert not (tmp_path / "joint" / "demos").exists()

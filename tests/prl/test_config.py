@@ -174,6 +174,17 @@ def test_ablation_config_names_bad_values(tmp_path: Path) -> None:
             make_ablation_config("data", "pn.pt", **overrides)
 
 
+def test_only_a_joint_control_sweep_runs_without_a_dataset() -> None:
+    joint = make_ablation_config(variants=["joint"], seeds=[2])
+    assert (joint.dataset_root, joint.pointnet_path, joint.variants) == (None, None, ("joint",))
+    with pytest.raises(ConfigError, match="dataset_root is needed by the variants physics, bc"):
+        make_ablation_config(variants=["joint", "physics", "bc"])
+    with pytest.raises(ConfigError, match="pointnet_path is needed by the variants bc"):
+        make_ablation_config("data", variants=["bc"])
+    with pytest.raises(ConfigError, match="dataset_root must be a path, got 3"):
+        make_ablation_config(3, "pn.pt")
+
+
 def _flags(parser: argparse.ArgumentParser) -> set[str]:
     return {s for a in parser._actions for s in a.option_strings}
 

@@ -19,6 +19,7 @@ from prl.ln_summary import (
     read_summary,
     reuse_decision,
     summary_bytes,
+    thin_rows,
     write_summary,
 )
 
@@ -52,6 +53,15 @@ def test_compact_rounds_curves_not_settings() -> None:
     assert s["settings"]["sb3.rms_prop_eps"] == 1e-05  # settings are written whole
     with pytest.raises(TypeError, match="JSON values only"):
         compact({"p": Path("/x")})
+
+
+def test_long_curves_are_thinned_evenly_with_both_ends() -> None:
+    assert thin_rows(list(range(10)), 4) == [0, 3, 6, 9]  # rows i * 9 / 3
+    assert thin_rows(list(range(7)), 3) == [0, 3, 6]
+    assert thin_rows(list(range(5)), 5) == [0, 1, 2, 3, 4]  # short curves whole
+    assert len(thin_rows(list(range(3850)))) == 400  # joint control at the plan runs' frames
+    with pytest.raises(ValueError, match="max_rows must be an integer >= 2, got 1"):
+        thin_rows([1, 2, 3], 1)
 
 
 def test_absolute_local_paths_are_refused(tmp_path: Path) -> None:
