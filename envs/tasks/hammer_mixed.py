@@ -28,6 +28,12 @@ from prl.shapes import NAIL_HEAD_RADIUS, NAIL_HEAD_THICKNESS, NAIL_PROTRUSION, N
 
 Range = tuple[float, float]
 
+SUCCESS_DESCENT_CM = 1.0
+"""The variant's success: the held hammer's descent d above 1 cm, the paper's stricter report level (``success_1cm``
+of the base task, which counts d > 0). Under d > 0, a hammer that only bumps the nail counted, and about one
+uniformly random plan in five did (44/200 on the trial plans of seed 0, 2026-12-03); the families' plans drive
+the nail 1.0-2.8 cm."""
+
 
 @dataclass(frozen=True)
 class NailFamily:
@@ -92,14 +98,11 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
       it; the hammer held with its handle along the nail (object Z || T_fv X) and carried by the arm along X does.
       Plan: ``(0, 3, 2, 0, 2, 0)`` (no tilt, no twist, anchor 2, medium wrap, arm_linear_x, object Z || T_fv X).
 
-    Measured (2026-12-03), on the first 30 scenes of each family from seed 20000 on (seeds 20000-20062, each
-    family's plan run on each family's scenes with ``envs.trials.run_trials``): each family's plan 30/30 on its own family; crossed, the base expert 2/30 on the
-    slanted family and ``(0, 3, 2, 0, 2, 0)`` 2/30 on the upright one; uniform plans 14/60 (seeds 20000-20059). On
-    the pipeline's trial seeds 0-49 (20 upright, 30 slanted): own plans 20/20 and 30/30, crossed 4/30 (base expert
-    on slanted) and 0/20; the best single fixed plan there is family 1's, 30/50 (on seeds 20000-20062: 32/60).
-    ``python -m envs.trials --task hammer_mixed --scenes 50``: expert 24/50, prior 21/50, uniform 9/50. The
-    uniform rate misses the issue's 10 %: family 0 is the base scene, on which about one uniform plan in five drives
-    the nail (the base task's trials: 9-11/50), and the slanted nail is struck by as many.
+    Measured (2026-12-03, under the variant's d > 1 cm) on the first 120 scenes from seed 20000 on (57 upright, 63
+    slanted): each family's plan 57/57 and 63/63 on its own family (d 1.47-2.8 cm upright, 1.02-1.4 cm slanted),
+    0/63 and 0/57 crossed; the uniformly random plans of ``python -m envs.trials --task hammer_mixed --scenes 200
+    --kinds uniform`` 16/200 (6/93 upright, 10/107 slanted), against 44/200 under the base task's d > 0 cm: a hammer
+    that only bumps the nail no longer counts. Further numbers in ``docs/tasks.md``.
 
     The family is ``scene_params["family"]``; x sees it through the nail's pose in the observation phase (x_manip's
     object pose: the nail's frame, tilted by ``nail_tilt`` in family 1), never through the family index. The tool
@@ -114,8 +117,9 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
       base task's
 
     **Success Conditions:**
-    - the base task's, unchanged: d, the nail's descent along its own axis credited to the hammer while a hand link
-      presses on the hammer, exceeds 0.05 cm; reward = d in cm
+    - d, the base task's measure (the nail's descent along its own axis credited to the hammer while a hand link
+      presses on the hammer), exceeds 1 cm: the paper's stricter report level (the base task's ``success_1cm``;
+      the base task counts d > 0 cm); reward = d in cm, as the base task's
     - fail: the hammer fell off the table or the simulation produced NaN
     """
 
@@ -133,6 +137,14 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
         for i, spec in enumerate(cls.families):
             if not isinstance(spec, NailFamily):
                 raise ValueError(f"{cls.__name__}.families[{i}] must be a NailFamily, got {spec!r}")  # noqa: TRY004
+
+    def evaluate(self) -> dict[str, torch.Tensor]:
+        """The base task's measures, with ``success`` at the paper's d > 1 cm (``SUCCESS_DESCENT_CM``, as the base
+        task's ``success_1cm``); the reward stays d. A failure the base task decides early (d <= 0.05 cm, nothing
+        left to move the nail) is one here too."""
+        info = super().evaluate()
+        info["success"] = (info["nail_descent_cm"] > SUCCESS_DESCENT_CM) & ~info["fail"]
+        return info
 
     # ------------------------------------------------------------------ scene
     def _load_scene(self, options: dict) -> None:

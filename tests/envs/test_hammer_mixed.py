@@ -72,8 +72,8 @@ def test_the_family_is_drawn_from_the_seed(env) -> None:
 
 @pytest.mark.sim
 def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
-    """On a scene of each family its expert drives the nail and the other family's expert does not (measured on 30
-    scenes of each family, seeds 20000-20062: own expert 30/30 and 30/30, the other's 2/30 and 2/30)."""
+    """On a scene of each family its expert drives the nail more than 1 cm and the other family's expert does not
+    (measured on seeds 20000-20119: own expert 57/57 and 63/63, the other's 0/63 and 0/57)."""
     from honesty import no_state_writes
 
     plans = _cls().family_expert_plans
@@ -83,9 +83,23 @@ def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
         with no_state_writes(monkeypatch) as writes:
             own = executor.run(plans[family])
         assert writes == []
-        assert own.success and own.outcome["nail_descent_cm"] > 0.5, (family, own.outcome)
+        assert own.success and own.outcome["nail_descent_cm"] > 1.0, (family, own.outcome)
         other = executor.run(plans[1 - family], seed=seed)
         assert not other.success, (family, other.outcome)
+
+
+@pytest.mark.sim
+def test_success_is_a_descent_above_one_centimetre(env, executor) -> None:
+    """The variant counts d > 1 cm (the paper's stricter level), the base task d > 0.05 cm: the same measured
+    descent, set on the env's record of what the held hammer drove, is judged by both rules."""
+    from envs.tasks.hammer import PRLHammerEnv
+
+    executor.observe(seed=HAMMER_SEEDS[0])
+    for drive_m, variant, base_rule in ((0.0004, False, False), (0.006, False, True), (0.011, True, True)):
+        env._hammer_drive = drive_m
+        info = env.evaluate()
+        assert bool(info["success"]) is variant and abs(float(info["nail_descent_cm"]) - 100 * drive_m) < 1e-6
+        assert bool(PRLHammerEnv.evaluate(env)["success"]) is base_rule
 
 
 @pytest.mark.sim
