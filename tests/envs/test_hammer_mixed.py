@@ -105,7 +105,7 @@ def test_success_is_a_descent_above_one_centimetre(env, executor) -> None:
 @pytest.mark.sim
 def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """x_manip records the nail's frame in the observation phase: its Z axis is vertical in family 0 and leans
-    35-45 deg towards the board's -X in family 1. The meshes rebuilt from scene_params are the base task's from the
+    within family 1's range (50-60 deg) towards the board's -X in family 1. The meshes rebuilt from scene_params are the base task's from the
     same values, with or without the family index (the index is in no part of x)."""
     import prl.shapes as S
     from prl.features import point_features
@@ -119,7 +119,8 @@ def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     z = {f: _object_z(x) for f, x in x_manip.items()}
     lean = {f: np.rad2deg(np.arccos(np.clip(v[:, 2], -1.0, 1.0))) for f, v in z.items()}
     assert np.all(lean[0] < 1.0), lean[0]  # upright
-    assert np.all((lean[1] > 33.0) & (lean[1] < 47.0)), lean[1]  # leaning
+    low, high = _cls().families[1].tilt_deg
+    assert np.all((lean[1] > low - 1.0) & (lean[1] < high + 1.0)), lean[1]  # leaning
     yaw = params[1]["board_yaw"]
     towards = z[1][:, :2] @ np.array([np.cos(yaw), np.sin(yaw)])  # along the board's X: negative (towards -X)
     assert np.all(towards < -0.5), towards
