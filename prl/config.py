@@ -363,13 +363,14 @@ class AblationConfig:
         plan_variants = [v for v in self.variants if v != "joint"]
         for name in ("dataset_root", "pointnet_path"):
             value = getattr(self, name)
-            if value is None and plan_variants:
-                raise ConfigError(f"{name} is needed by the variants {', '.join(plan_variants)} (demonstrations and "
-                                  f"x); only a sweep of joint control alone runs without one")
-            if value is not None and (not isinstance(value, (str, Path)) or not str(value)):
+            if value is None:
+                if plan_variants:
+                    raise ConfigError(f"{name} is needed by the variants {', '.join(plan_variants)} (demonstrations "
+                                      f"and x); only a sweep of joint control alone runs without one")
+                continue
+            if not isinstance(value, (str, Path)) or not str(value):
                 raise ConfigError(f"{name} must be a path, got {value!r}")
-            if value is not None:
-                object.__setattr__(self, name, Path(value))
+            object.__setattr__(self, name, Path(value))
         object.__setattr__(self, "output_dir", Path(self.output_dir))
 
 
