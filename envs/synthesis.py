@@ -49,6 +49,7 @@ from envs.execution import ExecutorConfig
 from envs.executor import PlanExecutor
 from envs.tasks import fast_resets, make_env, task_class
 from envs.trials import error_text
+from prl.atomic import write_atomic
 from prl.constants import EPISODE_FRAMES
 from prl.demo import from_episode, load_demo, save_demo
 from prl.plb import load_plb
@@ -152,6 +153,18 @@ def read_attempts(shard_dir: Path) -> list[dict]:
     return rows
 
 
+def resume_attempts(shard_dir: Path) -> list[dict]:
+    """:func:`read_attempts`, with the log rewritten without its torn tail when a kill left one, so that appends stay
+    line-aligned. Only then, and atomically: rewriting it in place at every shard-round could be cut by a kill,
+    losing the log, and showed the flow's progress tally a log shorter than it had read."""
+    rows = read_attempts(shard_dir)
+    path = Path(shard_dir) / "attempts.jsonl"
+    lines = "".join(json.dumps(r) + "\n" for r in rows)
+    if path.exists() and path.read_text() != lines:
+        write_atomic(path, lines)
+    return rows
+
+
 def _append(shard_dir: Path, row: dict) -> None:
     with open(Path(shard_dir) / "attempts.jsonl", "a") as fh:
         fh.write(json.dumps(row) + "\n")
@@ -196,10 +209,7 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     ``keep_env``: leave the environment open in this process for the next call (a worker's)."""
     t0 = time.perf_counter()
     spec.dir.mkdir(parents=True, exist_ok=True)
-    path = spec.dir / "attempts.jsonl"
-    rows = read_attempts(spec.dir)
-    if path.exists():  # rewrite without a torn tail so appends stay line-aligned
-        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    rows = resume_attempts(spec.dir)
     for torn in spec.dir.glob(".ep*.npz.tmp"):  # a demo write cut by a kill; its attempt is re-run
         torn.unlink()
     done = {r["attempt"] for r in rows}

@@ -109,8 +109,8 @@ class _LogTally:
                 size = path.stat().st_size
             except FileNotFoundError:
                 continue
-            if size < self.offsets[i]:  # rewritten without a torn tail on resume: count it again
-                self.offsets[i] = 0
+            if size < self.offsets[i]:  # rewritten without a torn tail on resume: count every log again
+                self.offsets = [0] * len(self.paths)
                 self.attempts = self.successes = 0
                 return self.update()
             if size == self.offsets[i]:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from envs.synthesis import ShardSpec, attempt_seeds, read_attempts, split_successes
+from envs.synthesis import ShardSpec, attempt_seeds, read_attempts, resume_attempts, split_successes
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -31,6 +31,18 @@ def test_split_and_seeds() -> None:
 def test_torn_attempt_line_is_dropped(tmp_path: Path) -> None:
     (tmp_path / "attempts.jsonl").write_text('{"attempt": 0, "success": false}\n{"attempt": 1, "succ')
     assert read_attempts(tmp_path) == [{"attempt": 0, "success": False}]
+
+
+def test_resume_rewrites_the_log_only_to_drop_a_torn_tail(tmp_path: Path) -> None:
+    log = tmp_path / "attempts.jsonl"
+    log.write_text('{"attempt": 0, "success": false}\n')
+    inode = log.stat().st_ino
+    assert resume_attempts(tmp_path) == [{"attempt": 0, "success": False}]
+    assert log.stat().st_ino == inode  # intact: left as it is
+    log.write_text('{"attempt": 0, "success": false}\n{"attempt": 1, "succ')
+    assert resume_attempts(tmp_path) == [{"attempt": 0, "success": False}]
+    assert log.read_text() == '{"attempt": 0, "success": false}\n'
+    assert resume_attempts(tmp_path / "new") == [] and not (tmp_path / "new").exists()
 
 
 def test_bad_spec_values() -> None:
@@ -240,5 +252,8 @@ def test_the_progress_tally_reads_only_new_complete_lines(tmp_path: Path) -> Non
     with open(log, "a") as fh:
         fh.write('ccess": true}\n')
     assert tally.update() == (3, 2)
-    log.write_text('{"attempt": 0, "success": false}\n')  # rewritten shorter on resume
-    assert tally.update() == (1, 0)
+    specs[1].dir.mkdir(parents=True)
+    (specs[1].dir / "attempts.jsonl").write_text('{"attempt": 0, "success": true}\n')
+    assert tally.update() == (4, 3)
+    log.write_text('{"attempt": 0, "success": false}\n')  # rewritten shorter on resume: every log counted again
+    assert tally.update() == (2, 1)
