@@ -202,11 +202,22 @@ def _watch(parent_id: str, names: set[str], total: int, futures: list, period_s:
     with tqdm(total=total, desc="LN sweep", unit="timestep") as bar:
         while not all(f.wrapped_future.done() for f in futures):
             runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent_id}'", output_format="list")
-            done = [r for r in runs if r.data.tags.get("ln_point") in names]
+            done = latest_point_runs(runs, names)
             bar.n = int(sum(r.data.metrics.get("ln/timesteps", 0.0) for r in done))
             bar.set_postfix(points_finished=sum(r.info.status == "FINISHED" for r in done))
             bar.refresh()
             time.sleep(period_s)
+
+
+def latest_point_runs(runs: list[Any], names: set[str]) -> list[Any]:
+    """Of MLflow runs tagged ``ln_point``, the latest started per point in ``names``: a point killed and run again
+    under the same sweep parent has two child runs, and only the one running now counts its timesteps."""
+    latest: dict[str, Any] = {}
+    for r in runs:
+        name = r.data.tags.get("ln_point")
+        if name in names and (name not in latest or r.info.start_time > latest[name].info.start_time):
+            latest[name] = r
+    return list(latest.values())
 
 
 def _repo_id_of(root: Path) -> str:

@@ -176,6 +176,20 @@ def test_ln_points_and_sweeps_name_bad_input() -> None:
     assert len(points) == 6 + 3 + 3  # physics K=0 and K=1280, bc K=1280, joint once; 3 seeds each
 
 
+def test_the_sweep_progress_counts_only_each_points_latest_run() -> None:
+    from types import SimpleNamespace
+
+    from flows.ablation import latest_point_runs
+
+    def run(point: str, start: int, steps: float) -> SimpleNamespace:
+        return SimpleNamespace(data=SimpleNamespace(tags={"ln_point": point}, metrics={"ln/timesteps": steps}),
+                               info=SimpleNamespace(start_time=start))
+
+    killed, again, other, elsewhere = run("a", 1, 768.0), run("a", 5, 64.0), run("b", 2, 128.0), run("c", 9, 1.0)
+    got = latest_point_runs([killed, again, other, elsewhere], {"a", "b"})
+    assert got == [again, other]  # 64 + 128 timesteps, not the killed run's 768 as well
+
+
 def test_fig8_redrawn_from_sweep_directories(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     import json
 
