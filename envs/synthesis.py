@@ -142,26 +142,32 @@ def split_successes(n_success: int, n_shards: int) -> list[int]:
 def read_attempts(shard_dir: Path) -> list[dict]:
     """The finished attempts of a shard (a torn last line from a kill is ignored)."""
     path = Path(shard_dir) / "attempts.jsonl"
-    if not path.exists():
-        return []
-    rows = []
-    for line in path.read_text().splitlines():
+    return _parse_attempts(path.read_text())[0] if path.exists() else []
+
+
+def _parse_attempts(text: str) -> tuple[list[dict], str]:
+    """The finished attempts of an attempt log's text, and the text of their lines alone."""
+    rows, lines = [], []
+    for line in text.splitlines():
         try:
             rows.append(json.loads(line))
         except json.JSONDecodeError:
             break  # a line cut by a kill: that attempt is re-run
-    return rows
+        lines.append(line + "\n")
+    return rows, "".join(lines)
 
 
 def resume_attempts(shard_dir: Path) -> list[dict]:
     """:func:`read_attempts`, with the log rewritten without its torn tail when a kill left one, so that appends stay
     line-aligned. Only then, and atomically: rewriting it in place at every shard-round could be cut by a kill,
     losing the log, and showed the flow's progress tally a log shorter than it had read."""
-    rows = read_attempts(shard_dir)
     path = Path(shard_dir) / "attempts.jsonl"
-    lines = "".join(json.dumps(r) + "\n" for r in rows)
-    if path.exists() and path.read_text() != lines:
-        write_atomic(path, lines)
+    if not path.exists():
+        return []
+    text = path.read_text()
+    rows, intact = _parse_attempts(text)
+    if intact != text:
+        write_atomic(path, intact)
     return rows
 
 
