@@ -67,13 +67,15 @@ class NailFamily:
 
 UPRIGHT = NailFamily(name="upright", tilt_deg=(0.0, 0.0))
 """Family 0: the base task's nail, upright in its flat board (1 cm thick, 16 x 16 cm)."""
-SLANTED = NailFamily(name="slanted", tilt_deg=(50.0, 60.0), block_half_size=(0.08, 0.08, 0.04))
-"""Family 1: a nail leaning 50-60 deg from the vertical towards the hammer's side, out of a static block (16 x 16 x 8
+SLANTED = NailFamily(name="slanted", tilt_deg=(55.0, 65.0), block_half_size=(0.08, 0.08, 0.04))
+"""Family 1: a nail leaning 55-65 deg from the vertical towards the hammer's side, out of a static block (16 x 16 x 8
 cm) whose top face is perpendicular to the nail (a wedge sunk into the table). Its head faces the hand: the head
 held upright and swung down by the wrist (the base task's expert) strikes it too obliquely to drive it 1 cm; the
 hammer held with its handle along the nail (object Z || T_fv X) and carried along X by the arm drives it. At
 35-45 deg a wrist swing with the hand at anchor 1, ``(0, 3, 1, 0, 0, 1)``, still drove 14 of 30 slanted nails
-(2026-12-03, a demo plan of the variant; at 50-60 deg 1 of 20)."""
+(2026-12-03, a demo plan of the variant; at 50-60 deg 1 of 20); at 50-60 deg one gripped at the handle's end,
+``(0, 3, 5, 0, 0, 1)``, drove 26 of 30 (and 5 of 20 upright: 31/50 on the trial scenes, over issue #26's 0.60 for
+one fixed plan), at 55-65 deg 8 of 20. At 60-70 deg the family's own plan falls to 17 of 20 (docs/tasks.md)."""
 
 
 def tilt_matrix(tilt: float) -> np.ndarray:
@@ -94,17 +96,19 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
       (object Z || T_fv Y, the head's face along the nail) and swung down by the wrist drives it. Plan:
       ``(0, 3, 2, 0, 0, 1)``, the base task's expert (no tilt, no twist, anchor 2, medium wrap, wrist swing,
       object Z || T_fv Y).
-    - family 1, ``slanted``: the nail leans 50-60 deg from the vertical towards the hammer's side (the board's -X
+    - family 1, ``slanted``: the nail leans 55-65 deg from the vertical towards the hammer's side (the board's -X
       edge, where the hand comes from), out of a static block (16 x 16 x 8 cm, sunk into the table) whose top face
       is perpendicular to it. The base task's expert (the head's face along the nail, a wrist swing) does not drive
       it; the hammer held with its handle along the nail (object Z || T_fv X) and carried by the arm along X does.
       Plan: ``(0, 3, 2, 0, 2, 0)`` (no tilt, no twist, anchor 2, medium wrap, arm_linear_x, object Z || T_fv X).
 
-    Measured (2026-12-03, d > 1 cm, the nail 50-60 deg) on the first 120 scenes from seed 20000 on (57 upright, 63
-    slanted): each family's plan 57/57 and 63/63 on its own family (d from 1.47 and from 1.33 cm), 0/63 and 0/57
-    crossed; a wrist swing at anchor 1, ``(0, 3, 1, 0, 0, 1)``, 56/57 and 0/63. The uniformly random plans of
-    ``python -m envs.trials --task hammer_mixed --scenes 200 --kinds uniform``: 16/200 (6/93 upright, 10/107
-    slanted), against 44/200 under the base task's d > 0 cm, where a hammer that only bumps the nail counted.
+    Measured (2026-12-03, d > 1 cm): family 0 on the first 120 scenes from seed 20000 on (57 upright): its plan
+    57/57 (d from 1.47 cm), the slanted plan 0/57. Family 1 at 55-65 deg on 60 of its scenes (seeds 40000-40059,
+    ``python -m envs.family_probe --task hammer_mixed --family 1``): its plan 60/60, the upright plan 0/60, the
+    demos' wrist swing at anchor 5 ``(0, 3, 5, 0, 0, 1)`` 27/60, ``(0, 3, 3, 0, 0, 3)`` 33/60 (0/20 upright). The
+    uniformly random plans of ``python -m envs.trials --task hammer_mixed --scenes 200 --kinds uniform``: 17/200
+    (6/93 upright, 11/107 slanted), against 44/200 under the base task's d > 0 cm (at 50-60 deg), where a hammer
+    that only bumps the nail counted.
     Further numbers in ``docs/tasks.md``.
 
     The family is ``scene_params["family"]``; x sees it through the nail's pose in the observation phase (x_manip's
@@ -115,7 +119,7 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
     **Randomizations:**
     - the family: 0 or 1 with probability 1/2 each, the first value drawn from the scene's seeded generator
     - then the base task's values, in its order (hammer sizes, mass, friction, rack and board placement and yaw)
-    - the nail's lean ``nail_tilt`` from the family's range (0 in family 0, 50-60 deg in family 1; radians), and the
+    - the nail's lean ``nail_tilt`` from the family's range (0 in family 0, 55-65 deg in family 1; radians), and the
       nail's holding force from the family's range (12-18 N in both); ranges scaled by ``randomization`` as the
       base task's
 
