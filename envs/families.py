@@ -13,6 +13,9 @@ each family's hand-written plan. Here, as references (never as a policy's input)
 ``python -m envs.families --task unscrew_mixed --scenes 50 [--dataset-root D --repo-id R] [--top 20]`` prints them
 on the pipeline's trial scenes with 95% Wilson intervals, per family; with ``--uniform`` it prints instead the
 uniformly random plans of ``python -m envs.trials --kinds uniform`` (the same plans on the same scenes) per family.
+With ``--decodings`` (and ``--dataset-root``) it adds what each RN decoding would execute if the RN read each scene's
+family perfectly and returned that family's demo marginals (``family_decodings``): the ceiling of the RN's targets
+on these demos.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from prl.constants import EPISODE_FRAMES
 from prl.stats import format_rate
@@ -126,12 +131,60 @@ def family_line(name: str, outcomes: Sequence[Any], families: Sequence[int]) -> 
     return "; ".join(parts)
 
 
-def demo_plans(dataset_root: str, repo_id: str, task: str) -> list[tuple[int, ...]]:
-    """The commanded plans of ``task``'s episodes in an exported dataset (all succeeded in simulation)."""
+def task_demos(dataset_root: str, repo_id: str, task: str) -> tuple[np.ndarray, list[int], np.ndarray]:
+    """``task``'s episodes in an exported dataset (all succeeded in simulation): their commanded plans (N, n), their
+    scenes' families (``scene_params["family"]``, -1 where a scene has none) and their importance weights."""
     from prl.features import read_episodes  # heavy: lerobot
 
-    episodes = read_episodes(dataset_root, repo_id)
-    return [tuple(int(v) for v in plan) for t, plan in zip(episodes.tasks, episodes.plan, strict=True) if t == task]
+    eps = read_episodes(dataset_root, repo_id)
+    idx = [i for i, t in enumerate(eps.tasks) if t == task]
+    if not idx:
+        raise ValueError(f"dataset {dataset_root!r} has no episodes of task {task!r}")
+    weights = np.ones(len(eps.tasks)) if eps.weights is None else eps.weights
+    return (eps.plan[idx].astype(np.int64), [int(eps.scene_params[i].get("family", -1)) for i in idx],
+            np.asarray(weights, dtype=np.float64)[idx])
+
+
+def family_decodings(plans: Any, families: Sequence[int], weights: Any,
+                     prior: Sequence[np.ndarray]) -> dict[int, dict[str, tuple[int, ...]]]:
+    """Per family, the plan each RN decoding (``prl.rn_policy.DECODINGS``) would choose if the RN output exactly that
+    family's demo marginals: per dimension the importance-weighted share of each choice among the family's demos
+    (an RN that reads the family perfectly and nothing finer). Tells a network that fails to read x apart from a
+    decoding that cannot express what the demos hold: when these plans fail on their own family's scenes, no RN
+    trained on these demos reaches the family oracle with that decoding.
+
+    ``plans`` (N, n) the demos' plans, ``families`` (N,) their scenes' families, ``weights`` (N,) their
+    importance weights (prior/proposal, ``prl.proposal``), ``prior`` the task's per-dimension prior (its sizes
+    are the dimensions' choices; 'rn_success' divides by it). The library is the distinct demo plans of every
+    family, as the RN's (``prl.rn_decode.plan_library``)."""
+    from prl.rn_decode import library_plan, plan_library
+
+    arr = np.asarray(plans, dtype=np.int64)
+    fam = np.asarray(families, dtype=np.int64)
+    w = np.asarray(weights, dtype=np.float64)
+    dims = [len(q) for q in prior]
+    if arr.ndim != 2 or arr.shape[1] != len(dims) or len(arr) < 1:
+        raise ValueError(f"plans must have shape (N >= 1, {len(dims)}), got {arr.shape}")
+    if fam.shape != (len(arr),) or w.shape != (len(arr),):
+        raise ValueError(f"families and weights need one value per plan ({len(arr)}), got shapes {fam.shape} and "
+                         f"{w.shape}")
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError("weights must be finite and >= 0")
+    bad = [(i, int(arr[:, i].max())) for i in range(len(dims)) if arr[:, i].min() < 0 or arr[:, i].max() >= dims[i]]
+    if bad:
+        raise ValueError(f"plan choices outside the prior's sizes {dims}: dimension, max choice {bad}")
+    library = plan_library(arr)
+    out: dict[int, dict[str, tuple[int, ...]]] = {}
+    for f in sorted(set(fam.tolist())):
+        m = fam == f
+        if w[m].sum() <= 0:
+            raise ValueError(f"family {f}: its demos' weights sum to 0")
+        probs = [np.bincount(arr[m, i], weights=w[m], minlength=d)[None, :] / w[m].sum()
+                 for i, d in enumerate(dims)]
+        out[f] = {"rn": tuple(int(p.argmax()) for p in probs),
+                  "rn_library": tuple(int(v) for v in library_plan(probs, library)[0]),
+                  "rn_success": tuple(int(v) for v in library_plan(probs, library, prior)[0])}
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -145,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
                                                               "join the fixed plans")
     parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: prl/<directory name>)")
     parser.add_argument("--top", type=int, default=20, help="the most frequent demo plans tried")
+    parser.add_argument("--decodings", action="store_true",
+                        help="with --dataset-root: also each RN decoding of a family-exact RN (the demos' weighted "
+                             "marginals of each scene's own family, family_decodings) on the same scenes")
     parser.add_argument("--uniform", action="store_true",
                         help="instead of the family table: the uniformly random plans of `python -m envs.trials "
                              "--kinds uniform` on its --scenes scenes, their successes per family")
@@ -159,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     if plans is None:
         parser.error(f"task {args.task!r} has no scene families (no family_expert_plans)")
+    if args.decodings and args.dataset_root is None:
+        parser.error("--decodings reads the demos: give --dataset-root")
     if args.uniform and args.dataset_root is not None:
         parser.error("--uniform runs the uniform plans instead of the family table: drop --dataset-root")
     if args.dataset_root is not None and not (Path(args.dataset_root) / "meta" / "info.json").is_file():
@@ -180,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     fixed = {f"family {k} expert": out[f"family {k} expert"] for k in plans}
     if args.dataset_root is not None:
         repo_id = args.repo_id or f"prl/{Path(args.dataset_root).name}"
-        frequent = frequent_plans(demo_plans(args.dataset_root, repo_id, args.task), args.top)
+        demos, demo_families, weights = task_demos(args.dataset_root, repo_id, args.task)
+        frequent = frequent_plans(demos, args.top)
         known = {tuple(p) for p in plans.values()}
         for plan, count in frequent:
             if plan in known:
@@ -190,6 +249,15 @@ def main(argv: list[str] | None = None) -> int:
             print(family_line(name, fixed[name], families), flush=True)
     best = max(fixed, key=lambda name: sum(bool(o.success) for o in fixed[name]))
     print(f"best single fixed plan of {len(fixed)}: {family_line(best, fixed[best], families)}")
+    if args.decodings:
+        from prl.plb import load_plb
+
+        decoded = family_decodings(demos, demo_families, weights, load_plb().prior(args.task))
+        for kind in ("rn", "rn_library", "rn_success"):
+            print(f"family-exact RN, {kind}: " + "; ".join(f"family {f}: {list(d[kind])}" for f, d in decoded.items()))
+            plans_run = [decoded[f][kind] if f in decoded else plans[0] for f in families]
+            outs = run_trials(args.task, plans_run, seeds)
+            print(family_line(f"family-exact RN ({kind})", outs, families), flush=True)
     return 0
 
 

@@ -26,6 +26,32 @@ def test_per_family_and_frequent_plans_by_hand() -> None:
         frequent_plans(plans, 0)
 
 
+def test_family_decodings_by_hand() -> None:
+    """A family-exact RN's plans, computed by hand: family 1's weighted marginals are [.32, .40, .28] and [.4, .6],
+    so the argmax (1, 1) was never demonstrated; the library's best is (0, 1) (.32 * .6 = .192 against (1, 0)'s .16 and
+    (2, 1)'s .168); divided by the prior [.5, .25, .25] x [.8, .2] the best is (2, 1) (3.36 against 1.92 and 0.8)."""
+    import numpy as np
+
+    from envs.families import family_decodings
+
+    plans = [(0, 1), (2, 1), (1, 0), (0, 1), (2, 1)]
+    families = [0, 0, 1, 1, 1]
+    weights = [1.0, 3.0, 2.0, 1.6, 1.4]
+    prior = (np.array([0.5, 0.25, 0.25]), np.array([0.8, 0.2]))
+    assert family_decodings(plans, families, weights, prior) == {
+        0: {"rn": (2, 1), "rn_library": (2, 1), "rn_success": (2, 1)},
+        1: {"rn": (1, 1), "rn_library": (0, 1), "rn_success": (2, 1)},
+    }
+    with pytest.raises(ValueError, match=r"outside the prior's sizes \[3, 2\]: dimension, max choice \[\(0, 3\)\]"):
+        family_decodings([(3, 0)], [0], [1.0], prior)
+    with pytest.raises(ValueError, match=r"plans must have shape \(N >= 1, 2\), got \(1, 3\)"):
+        family_decodings([(0, 0, 0)], [0], [1.0], prior)
+    with pytest.raises(ValueError, match="weights must be finite and >= 0"):
+        family_decodings(plans, families, [1.0, -1.0, 1.0, 1.0, 1.0], prior)
+    with pytest.raises(ValueError, match=r"one value per plan \(5\)"):
+        family_decodings(plans, families[:4], weights, prior)
+
+
 def test_families_are_read_back_from_the_oracles_plans() -> None:
     from envs.families import families_of_oracle, family_plans
 
@@ -114,7 +140,8 @@ def test_the_command_names_bad_input(capsys) -> None:
                         (["--task", "unscrew_mixed", "--dataset-root", "/nonexistent/d"],
                          "no exported dataset there"),
                         (["--task", "unscrew_mixed", "--uniform", "--dataset-root", "/nonexistent/d"],
-                         "--uniform runs the uniform plans instead of the family table")):
+                         "--uniform runs the uniform plans instead of the family table"),
+                        (["--task", "unscrew_mixed", "--decodings"], "--decodings reads the demos: give --dataset-root")):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2 and named in capsys.readouterr().err, argv
