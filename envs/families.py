@@ -14,8 +14,8 @@ each family's hand-written plan. Here, as references (never as a policy's input)
 on the pipeline's trial scenes with 95% Wilson intervals, per family; with ``--uniform`` it prints instead the
 uniformly random plans of ``python -m envs.trials --kinds uniform`` (the same plans on the same scenes) per family.
 With ``--decodings`` (and ``--dataset-root``) it adds what each RN decoding would execute if the RN read each scene's
-family perfectly and returned that family's demo marginals (``family_decodings``): the ceiling of the RN's targets
-on these demos.
+family perfectly and returned that family's demo marginals (``family_decodings``): whether reading the family alone
+is enough for each decoding on these demos.
 """
 
 from __future__ import annotations
@@ -150,8 +150,8 @@ def family_decodings(plans: Any, families: Sequence[int], weights: Any,
     """Per family, the plan each RN decoding (``prl.rn_policy.DECODINGS``) would choose if the RN output exactly that
     family's demo marginals: per dimension the importance-weighted share of each choice among the family's demos
     (an RN that reads the family perfectly and nothing finer). Tells a network that fails to read x apart from a
-    decoding that cannot express what the demos hold: when these plans fail on their own family's scenes, no RN
-    trained on these demos reaches the family oracle with that decoding.
+    decoding that cannot express what the demos hold: when these plans fail on their own family's scenes, an RN must
+    read more of each scene than its family to do better with that decoding (which scenes each mode works on).
 
     ``plans`` (N, n) the demos' plans, ``families`` (N,) their scenes' families, ``weights`` (N,) their
     importance weights (prior/proposal, ``prl.proposal``), ``prior`` the task's per-dimension prior (its sizes
