@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from prl.constants import EPISODE_FRAMES
+from prl.plb import load_plb
 from prl.stats import format_rate
 
 
@@ -157,7 +158,7 @@ def family_decodings(plans: Any, families: Sequence[int], weights: Any,
     importance weights (prior/proposal, ``prl.proposal``), ``prior`` the task's per-dimension prior (its sizes
     are the dimensions' choices; 'rn_success' divides by it). The library is the distinct demo plans of every
     family, as the RN's (``prl.rn_decode.plan_library``)."""
-    from prl.rn_decode import library_plan, plan_library
+    from prl.rn_decode import library_plan, plan_library  # heavy: torch
 
     arr = np.asarray(plans, dtype=np.int64)
     fam = np.asarray(families, dtype=np.int64)
@@ -250,8 +251,6 @@ def main(argv: list[str] | None = None) -> int:
     best = max(fixed, key=lambda name: sum(bool(o.success) for o in fixed[name]))
     print(f"best single fixed plan of {len(fixed)}: {family_line(best, fixed[best], families)}")
     if args.decodings:
-        from prl.plb import load_plb
-
         decoded = family_decodings(demos, demo_families, weights, load_plb().prior(args.task))
         for kind in ("rn", "rn_library", "rn_success"):
             print(f"family-exact RN, {kind}: " + "; ".join(f"family {f}: {list(d[kind])}" for f, d in decoded.items()))
