@@ -31,6 +31,8 @@ import numpy as np
 
 from prl.constants import EPISODE_FRAMES
 from prl.plb import load_plb
+from prl.proposal import weighted_choice_freqs
+from prl.rn_policy import DECODINGS
 from prl.stats import format_rate
 
 
@@ -171,17 +173,16 @@ def family_decodings(plans: Any, families: Sequence[int], weights: Any,
                          f"{w.shape}")
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise ValueError("weights must be finite and >= 0")
-    bad = [(i, int(arr[:, i].max())) for i in range(len(dims)) if arr[:, i].min() < 0 or arr[:, i].max() >= dims[i]]
+    bad = [(i, int(v)) for i, d in enumerate(dims) for v in np.unique(arr[:, i]) if not 0 <= v < d]
     if bad:
-        raise ValueError(f"plan choices outside the prior's sizes {dims}: dimension, max choice {bad}")
+        raise ValueError(f"plan choices outside the prior's sizes {dims}: dimension, choice {bad}")
     library = plan_library(arr)
     out: dict[int, dict[str, tuple[int, ...]]] = {}
     for f in sorted(set(fam.tolist())):
         m = fam == f
         if w[m].sum() <= 0:
             raise ValueError(f"family {f}: its demos' weights sum to 0")
-        probs = [np.bincount(arr[m, i], weights=w[m], minlength=d)[None, :] / w[m].sum()
-                 for i, d in enumerate(dims)]
+        probs = [q[None, :] for q in weighted_choice_freqs(arr[m], dims, w[m])]
         out[f] = {"rn": tuple(int(p.argmax()) for p in probs),
                   "rn_library": tuple(int(v) for v in library_plan(probs, library)[0]),
                   "rn_success": tuple(int(v) for v in library_plan(probs, library, prior)[0])}
@@ -252,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"best single fixed plan of {len(fixed)}: {family_line(best, fixed[best], families)}")
     if args.decodings:
         decoded = family_decodings(demos, demo_families, weights, load_plb().prior(args.task))
-        for kind in ("rn", "rn_library", "rn_success"):
+        for kind in DECODINGS:
             print(f"family-exact RN, {kind}: " + "; ".join(f"family {f}: {list(d[kind])}" for f, d in decoded.items()))
             plans_run = [decoded[f][kind] if f in decoded else plans[0] for f in families]
             outs = run_trials(args.task, plans_run, seeds)

@@ -42,8 +42,10 @@ def test_family_decodings_by_hand() -> None:
         0: {"rn": (2, 1), "rn_library": (2, 1), "rn_success": (2, 1)},
         1: {"rn": (1, 1), "rn_library": (0, 1), "rn_success": (2, 1)},
     }
-    with pytest.raises(ValueError, match=r"outside the prior's sizes \[3, 2\]: dimension, max choice \[\(0, 3\)\]"):
+    with pytest.raises(ValueError, match=r"outside the prior's sizes \[3, 2\]: dimension, choice \[\(0, 3\)\]"):
         family_decodings([(3, 0)], [0], [1.0], prior)
+    with pytest.raises(ValueError, match=r"dimension, choice \[\(1, -1\)\]"):
+        family_decodings([(0, -1), (1, 1)], [0, 0], [1.0, 1.0], prior)
     with pytest.raises(ValueError, match=r"plans must have shape \(N >= 1, 2\), got \(1, 3\)"):
         family_decodings([(0, 0, 0)], [0], [1.0], prior)
     with pytest.raises(ValueError, match="weights must be finite and >= 0"):
