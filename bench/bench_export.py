@@ -2,11 +2,13 @@
 
 Makes ``--demos`` demos of ``--task`` (its expert plan on scenes 0, 1, ...; not timed), or takes the ``ep*.npz`` of
 ``--demo-dir``, then exports them side by side, alternating, ``--rounds`` times: ``fast_writes=False`` (lerobot's
-per-frame image embedding and per-episode statistics), ``fast_writes=True`` with lerobot's statistics code (no
-embedding: there is no image to embed) and ``fast_writes=True`` (statistics by ``prl.episode_stats``). Each export is the real one
+per-frame image embedding and per-episode statistics); ``fast_writes=True`` with lerobot's statistics code and
+lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed); the same with the
+statistics by ``prl.episode_stats``; and ``fast_writes=True`` (also ``prl.export._lean_writes``: stats.json once,
+no fingerprint hashing). Each export is the real one
 (``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
-whether the two datasets hold the same files: the same bytes, and for the parquet files the same table and metadata
-but for the fingerprint that ``datasets.map`` stamps (lerobot's embedding pass is one).
+whether the datasets hold the same files as lerobot's writes: the same bytes, and for the parquet files the same
+table and metadata but for the fingerprint that ``datasets.map`` stamps (lerobot's embedding pass is one).
 ``python -m bench.bench_export [--task hammer] [--demos 40] [--rounds 2] [--demo-dir DIR]``
 """
 
@@ -71,28 +73,32 @@ def main() -> None:
                 raise SystemExit(f"no ep*.npz demos in {args.demo_dir!r}")
         else:
             paths, _, _ = _demos(args.task, args.demos, out / "demos")
-        modes = ("lerobot's writes", "no image embedding", "fast_writes")
+        modes = ("lerobot's writes", "no image embedding", "+ prl statistics", "fast_writes")
+        # what each fast mode leaves as lerobot does it: the middle modes isolate one change's share each
+        left_out = {"no image embedding": ("fast_episode_stats", "_lean_writes"),
+                    "+ prl statistics": ("_lean_writes",), "fast_writes": ()}
         times: dict[str, list[float]] = {m: [] for m in modes}
         files: dict[str, dict[str, object]] = {}
         for r in range(args.rounds):
             for mode in modes:
                 root = out / f"ds-{modes.index(mode)}-{r}"
-                # the middle mode is fast_writes with lerobot's own statistics: the statistics' share alone
-                stats = prl.export.fast_episode_stats
-                if mode == "no image embedding":
-                    prl.export.fast_episode_stats = contextlib.nullcontext
+                saved = {name: getattr(prl.export, name) for name in left_out.get(mode, ())}
+                for name in saved:
+                    setattr(prl.export, name, contextlib.nullcontext)
                 try:
                     t0 = time.perf_counter()
                     export_lerobot(paths, root, repo_id="prl/bench", fast_writes=mode != "lerobot's writes")
                     times[mode].append((time.perf_counter() - t0) / len(paths))
                 finally:
-                    prl.export.fast_episode_stats = stats
+                    for name, value in saved.items():
+                        setattr(prl.export, name, value)
                 files[mode] = dataset_files(root)
         med = {m: statistics.median(times[m]) for m in modes}
         print(f"{len(paths)} episodes, {args.rounds} rounds, median s per episode: "
               + ", ".join(f"{m} {med[m]:.3f}" for m in modes))
-        print(f"ratios: lerobot's writes / fast_writes {med[modes[0]] / med[modes[2]]:.2f}x; "
-              f"lerobot's statistics / prl.episode_stats (both without embedding) {med[modes[1]] / med[modes[2]]:.2f}x")
+        print(f"ratios: lerobot's writes / fast_writes {med[modes[0]] / med[modes[3]]:.2f}x; each change, the mode "
+              f"before / the mode with it: prl statistics {med[modes[1]] / med[modes[2]]:.2f}x, stats.json once and no "
+              f"fingerprint {med[modes[2]] / med[modes[3]]:.2f}x")
         for mode in modes[1:]:
             differ = sorted(k for k in files[modes[0]].keys() | files[mode].keys()
                             if not _same(files[modes[0]].get(k), files[mode].get(k)))

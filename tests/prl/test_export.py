@@ -173,6 +173,43 @@ def test_synthetic_round_trip_and_stale_staging_cleanup(tmp_path: Path, syntheti
     assert item["task"] == d1.text
 
 
+def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[Path]) -> None:
+    """``fast_writes`` (no embedding pass, prl's statistics, stats.json once, no fingerprint hashing) writes the files
+    lerobot's own writes do: the same bytes, and the same tables and parquet metadata (lerobot's embedding pass
+    stamps a fingerprint the fast path does not); and lerobot's functions are back afterwards."""
+    import datasets.arrow_dataset
+    from lerobot.datasets import dataset_metadata
+
+    from bench.bench_export import _same, dataset_files
+
+    patched = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint
+    labels = {1: [0, 1, 2, 3, 4, 5]}
+    slow = export_lerobot(synthetic_paths, tmp_path / "slow", repo_id=REPO_ID, per_episode_label=labels,
+                          fast_writes=False)
+    fast = export_lerobot(synthetic_paths, tmp_path / "fast", repo_id=REPO_ID, per_episode_label=labels)
+    want, got = dataset_files(slow.root), dataset_files(fast.root)
+    assert "meta/stats.json" in got and sorted(got) == sorted(want)
+    assert [k for k in want if not _same(want[k], got[k])] == []
+    assert (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint) == patched
+
+
+def test_lean_writes_write_the_last_stats_once_and_none_on_error(tmp_path: Path) -> None:
+    from lerobot.datasets import dataset_metadata
+    from lerobot.datasets.io_utils import load_stats
+
+    from prl.export import _lean_writes
+
+    with _lean_writes():
+        for i in range(3):
+            dataset_metadata.write_stats({"x": {"mean": np.array([float(i)])}}, tmp_path / "ok")
+        assert not (tmp_path / "ok").exists()  # nothing written before the block ends
+    assert load_stats(tmp_path / "ok")["x"]["mean"].tolist() == [2.0]
+    with pytest.raises(RuntimeError, match="boom"), _lean_writes():
+        dataset_metadata.write_stats({"x": {"mean": np.array([1.0])}}, tmp_path / "failed")
+        raise RuntimeError("boom")
+    assert not (tmp_path / "failed").exists()
+
+
 def test_export_key_and_reuse(tmp_path: Path, synthetic_paths: list[Path]) -> None:
     labels = {str(synthetic_paths[0]): [0, 1, 2, 3, 0, 1]}
     key = export_key(synthetic_paths, labels, REPO_ID, 100, "v1")
