@@ -11,6 +11,13 @@ is swapped in this process and restored after, also on an error); nothing is wri
 untouched, and ``scene_params["family"]`` then says only which slot of the table was drawn. A probe is a design
 aid, not a measurement of the variant: once a range is chosen, edit the task module and measure it with
 ``python -m envs.families``.
+
+``--prior N`` asks the question the RN's target turns on before any demos are made: N plans sampled from the task's
+prior on the changed family's scenes (plan i on scene i mod --scenes), and from the successful ones, as
+``envs.families.family_decodings`` does with demos, the plan each RN decoding would execute if the RN read the family
+perfectly (the successes' per-dimension shares; the library is the distinct successful plans); those plans then run
+on the probe's scenes. A family whose decoded plans fail there cannot be solved by the paper's decoding reading the
+family alone, however many demos are made (docs/tasks.md, hammer_mixed).
 """
 
 from __future__ import annotations
@@ -22,7 +29,9 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from prl.plb import parse_plan, validate_plan
+import numpy as np
+
+from prl.plb import load_plb, parse_plan, validate_plan
 from prl.stats import format_rate
 
 Range = tuple[float, float]
@@ -82,6 +91,30 @@ def probe(task: str, family: int, changes: Mapping[str, Range], plans: Sequence[
         return {plan: run_trials(task, [plan] * len(seeds), list(seeds)) for plan in checked}
 
 
+def prior_decodings(task: str, family: int, changes: Mapping[str, Range], seeds: Sequence[int], n_prior: int,
+                    rng_seed: int) -> tuple[int, dict[str, tuple[int, ...]]]:
+    """(successes, {decoding: plan}) of ``n_prior`` prior-sampled plans on the changed family's scenes (plan i on
+    ``seeds[i % len(seeds)]``, plans drawn with ``numpy.random.default_rng(rng_seed)``): the plans
+    ``envs.families.family_decodings`` gives for the successful ones (equal weights: they were drawn from the prior).
+    ValueError when none succeeds (nothing to decode)."""
+    from envs.families import family_decodings  # heavy: loads the simulator
+    from envs.tasks import task_class
+    from envs.trials import run_trials
+
+    if n_prior < 1 or not seeds:
+        raise ValueError(f"--prior needs at least one plan and one scene, got {n_prior} plans, {len(seeds)} scenes")
+    plb = load_plb()
+    rng = np.random.default_rng(rng_seed)
+    plans = [tuple(int(v) for v in plb.sample_plan(task, rng)) for _ in range(n_prior)]
+    with family_ranges(task_class(task), family, changes):
+        outcomes = run_trials(task, plans, [seeds[i % len(seeds)] for i in range(n_prior)])
+    won = [p for p, o in zip(plans, outcomes) if o.success]
+    if not won:
+        raise ValueError(f"none of the {n_prior} prior-sampled plans succeeded on family {family}: nothing to decode")
+    decoded = family_decodings(won, [family] * len(won), np.ones(len(won)), plb.prior(task))[family]
+    return len(won), decoded
+
+
 def main(argv: list[str] | None = None) -> int:
     summary = " ".join(__doc__.split("\n\n")[0].split())
     parser = argparse.ArgumentParser(prog="python -m envs.family_probe", description=summary)
@@ -89,8 +122,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--family", type=int, required=True, help="the family whose ranges change (0, 1, ...)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=LOW,HIGH",
                         help="a range of the family record to change (repeatable)")
-    parser.add_argument("--plans", nargs="+", required=True, metavar="A0,A1,A2,A3,A4,A5",
+    parser.add_argument("--plans", nargs="+", default=[], metavar="A0,A1,A2,A3,A4,A5",
                         help="the plans to try, each as six comma-separated indices")
+    parser.add_argument("--prior", type=int, default=0, metavar="N",
+                        help="also sample N plans from the task's prior on the family's scenes and try the plan each "
+                             "RN decoding would take from their successes (see above)")
     parser.add_argument("--scenes", type=int, default=20, help="scenes per plan")
     parser.add_argument("--first-seed", type=int, default=30000,
                         help="scene seeds first-seed .. first-seed + scenes - 1 (keep clear of the trial and "
@@ -98,20 +134,30 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    if args.prior < 0 or (not args.plans and not args.prior):
+        parser.error(f"give --plans, or --prior N with N >= 1 (got --prior {args.prior})")
     try:
         changes = dict(parse_setting(s) for s in args.set)
         plans = [tuple(int(v) for v in parse_plan(p)) for p in args.plans]
     except ValueError as exc:
         parser.error(str(exc))
     seeds = list(range(args.first_seed, args.first_seed + args.scenes))
+    decoded: dict[str, tuple[int, ...]] = {}
     try:
+        if args.prior:
+            won, decoded = prior_decodings(args.task, args.family, changes, seeds, args.prior, args.first_seed)
+            plans += [p for p in decoded.values() if p not in plans]
         out = probe(args.task, args.family, changes, plans, seeds)
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
     what = ", ".join(f"{k} {lo:g}-{hi:g}" for k, (lo, hi) in changes.items()) or "unchanged"
     print(f"{args.task} family {args.family} ({what}), scene seeds {seeds[0]}-{seeds[-1]}:")
+    if args.prior:
+        print(f"  prior-sampled plans: {format_rate(won, args.prior)} succeeded")
     for plan, outcomes in out.items():
-        print(f"  {list(plan)}  {format_rate(sum(bool(o.success) for o in outcomes), len(outcomes))}")
+        names = [k for k, v in decoded.items() if v == plan]
+        tag = f"  ({', '.join(names)} of the prior's successes)" if names else ""
+        print(f"  {list(plan)}  {format_rate(sum(bool(o.success) for o in outcomes), len(outcomes))}{tag}")
     return 0
 
 
