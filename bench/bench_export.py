@@ -75,8 +75,7 @@ def main() -> None:
             paths, _, _ = _demos(args.task, args.demos, out / "demos")
         modes = ("lerobot's writes", "no image embedding", "+ prl statistics", "fast_writes")
         # what each fast mode leaves as lerobot does it: the middle modes isolate one change's share each
-        left_out = {"no image embedding": ("fast_episode_stats", "_lean_writes"),
-                    "+ prl statistics": ("_lean_writes",), "fast_writes": ()}
+        left_out = {"no image embedding": ("fast_episode_stats", "_lean_writes"), "+ prl statistics": ("_lean_writes",)}
         times: dict[str, list[float]] = {m: [] for m in modes}
         files: dict[str, dict[str, object]] = {}
         for r in range(args.rounds):

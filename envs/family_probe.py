@@ -75,17 +75,23 @@ def family_ranges(cls: Any, family: int, changes: Mapping[str, Range]) -> Iterat
         cls.families = table
 
 
+def mixed_class(task: str) -> Any:
+    """The environment class of the mixed variant ``task``; ValueError naming a task without scene families."""
+    from envs.families import family_plans  # heavy: loads the simulator
+    from envs.tasks import task_class
+
+    if family_plans(task) is None:
+        raise ValueError(f"task {task!r} has no scene families (no family_expert_plans)")
+    return task_class(task)
+
+
 def probe(task: str, family: int, changes: Mapping[str, Range], plans: Sequence[Sequence[int]],
           seeds: Sequence[int]) -> dict[tuple[int, ...], list[Any]]:
     """Each plan's outcomes (``envs.trials.TrialOutcome``) on ``seeds``' scenes, all drawn from the changed
     family. ValueError for a task without families or a bad plan (``prl.plb``)."""
-    from envs.families import family_plans  # heavy: loads the simulator
-    from envs.tasks import task_class
-    from envs.trials import run_trials
+    from envs.trials import run_trials  # heavy: loads the simulator
 
-    if family_plans(task) is None:
-        raise ValueError(f"task {task!r} has no scene families (no family_expert_plans)")
-    cls = task_class(task)
+    cls = mixed_class(task)
     checked = [tuple(int(v) for v in validate_plan(p)) for p in plans]
     with family_ranges(cls, family, changes):
         return {plan: run_trials(task, [plan] * len(seeds), list(seeds)) for plan in checked}
@@ -98,15 +104,15 @@ def prior_decodings(task: str, family: int, changes: Mapping[str, Range], seeds:
     ``envs.families.family_decodings`` gives for the successful ones (equal weights: they were drawn from the prior).
     ValueError when none succeeds (nothing to decode)."""
     from envs.families import family_decodings  # heavy: loads the simulator
-    from envs.tasks import task_class
     from envs.trials import run_trials
 
     if n_prior < 1 or not seeds:
         raise ValueError(f"--prior needs at least one plan and one scene, got {n_prior} plans, {len(seeds)} scenes")
+    cls = mixed_class(task)
     plb = load_plb()
     rng = np.random.default_rng(rng_seed)
     plans = [tuple(int(v) for v in plb.sample_plan(task, rng)) for _ in range(n_prior)]
-    with family_ranges(task_class(task), family, changes):
+    with family_ranges(cls, family, changes):
         outcomes = run_trials(task, plans, [seeds[i % len(seeds)] for i in range(n_prior)])
     won = [p for p, o in zip(plans, outcomes) if o.success]
     if not won:

@@ -58,6 +58,9 @@ def test_cli_needs_plans_or_prior(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         main(["--task", "unscrew_mixed", "--family", "1", "--prior", "-3"])
     assert "--prior -3" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--task", "unscrew", "--family", "0", "--prior", "2", "--scenes", "1"])
+    assert "no scene families" in capsys.readouterr().err
 
 
 def test_prior_decodings_decode_the_successes_only(monkeypatch: pytest.MonkeyPatch) -> None:
