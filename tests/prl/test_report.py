@@ -168,3 +168,29 @@ def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     assert target_line("sweep", groups) == "Target (physics K = 1,280, pooled >= 0.90): not run yet."
     assert target_line("sweep_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos, "
                                                   "pooled >= 0.85): not run yet.")
+
+
+def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
+    """Across tasks and in P(A > B)'s last column, a variant's seeds never enter the paper tasks' numbers; a task
+    with neither comparison gets no column. Every seed's scenes all succeed or all fail, so the bootstrap cannot
+    move the numbers: hammer 1.0 alone (IQM 1.00), hammer_mixed 0.0 alone (0.00)."""
+    from prl.report import Group, across_tasks_table, improvement_table
+
+    def points(*scores: float) -> list[dict]:
+        return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
+
+    groups = {Group(0, "hammer", 0, "physics", 1280, 3200): points(1.0, 1.0),
+              Group(0, "hammer", 0, "physics", 0, 3200): points(0.0, 0.0),
+              Group(4, "hammer_mixed", 0, "physics", 1280, 3200): points(0.0),
+              Group(4, "hammer_mixed", 0, "physics", 0, 3200): points(1.0),
+              Group(4, "sweep_mixed", 0, "physics", 1280, 3200): points(1.0)}
+    across = across_tasks_table(groups)
+    assert across[2:] == ["| physics K=0 | hammer | 0.00 (0.00-0.00) |",
+                          "| physics K=1280 | hammer | 1.00 (1.00-1.00) |",
+                          "| physics K=0 | hammer_mixed | 1.00 (1.00-1.00) |",
+                          "| physics K=1280 | hammer_mixed, sweep_mixed | 0.50 (0.50-0.50) |"]
+    poi = improvement_table(groups)
+    assert poi[0] == "| comparison | hammer | hammer_mixed | paper tasks with both |"  # no sweep_mixed column
+    # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last column is the hammer's
+    assert poi[2] == "| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) |"
+    assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - |"
