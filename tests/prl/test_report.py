@@ -194,3 +194,22 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
     # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last column is the hammer's
     assert poi[2] == "| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) |"
     assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - |"
+
+
+def test_the_reward_table_counts_failures_paid_like_a_success() -> None:
+    """Failures paid at least the least-paid success, per variant and seed, counted by hand: the unscrew's least
+    success is paid 23.5; a failure at 120 (gripped no more) and one tied at 23.5 count, one at 3.0 does not, and an
+    outcome without a measure is left out. The sweep's failures are all paid less than its successes."""
+    from prl.report import Group, reward_table
+
+    def point(seed: int, *outcomes: tuple[bool, float | None]) -> dict:
+        return {"point": {"seed": seed}, "eval": {"outcomes": [{"success": ok, "measure": m} for ok, m in outcomes]}}
+
+    groups = {Group(1, "sweep", 0, "physics", 1280, 3200): [point(0, (True, 5.0), (False, 3.0))],
+              Group(2, "unscrew", 0, "physics", 1280, 3200): [point(0, (True, 40.0), (True, 23.5), (False, 3.0)),
+                                                              point(2, (False, 120.0), (True, None))],
+              Group(2, "unscrew", 2, "joint", 0, 3200): [point(1, (False, 23.5))]}
+    rows = reward_table(groups)
+    assert rows[2] == "| sweep | 2 | 1 | 5.00 | 3.00 | 0 | - |"
+    assert rows[3] == ("| unscrew | 5 | 2 | 23.50 | 120.00 | 2 "
+                       "| physics K=1280 s2: 1, joint control s1: 1 |")
