@@ -6,7 +6,7 @@ depend on how many workers run the shards, nor on the order they run in. A shard
 has its share of successes (or ``max_attempts`` attempts).
 
 Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal (mixed with the
-prior, its defensive share), which changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
+prior, its defensive share, and with replays of earlier rounds' successful plans, its replay share), which changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
 every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
 rounds < r of all the task's shards, and round r + 1 starts when round r has ended everywhere. A prior run
 is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
@@ -94,6 +94,11 @@ class ShardSpec:
     defensive: float | None = None
     """Draw each plan from the prior with this probability, else from ``proposal`` (the defensive mixture of
     ``prl.proposal``; None: from ``proposal`` alone)."""
+    replays: tuple[tuple[int, ...], ...] = ()
+    """The plans of the earlier rounds' successes of the task (all shards), which an adapted draw replays with
+    probability ``replay`` (``prl.proposal.sample_mixture``)."""
+    replay: float = 0.0
+    """Share of the adapted draws that replay one of ``replays``."""
 
     def __post_init__(self) -> None:
         if self.n_success < 0:
@@ -246,7 +251,7 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
                     env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)
                 rng = np.random.default_rng(plan_seed)
                 plan = sample_plan(probs, rng) if spec.defensive is None else \
-                    sample_mixture(prior, probs, spec.defensive, rng)
+                    sample_mixture(prior, probs, spec.defensive, rng, spec.replays, spec.replay)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
                 row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
@@ -286,7 +291,8 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
 
 def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any) -> dict[str, Any]:
     """The attempt's round and its plan's log-probabilities under the distribution that drew it and the prior."""
-    drew = log_prob(probs, plan) if spec.defensive is None else mixture_log_prob(prior, probs, spec.defensive, plan)
+    drew = log_prob(probs, plan) if spec.defensive is None else \
+        mixture_log_prob(prior, probs, spec.defensive, plan, spec.replays, spec.replay)
     return {"round": int(spec.round), "proposal_logp": drew, "prior_logp": log_prob(prior, plan)}
 
 
@@ -312,6 +318,7 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
     plb = load_plb()
     out = []
     proposals: dict[str, Any] = {}
+    replays: dict[str, tuple[tuple[int, ...], ...]] = {}
     for s in todo:
         if len(logs[s.task, s.shard]) >= (r + 1) * cfg.round_attempts:  # ended this round before a kill
             continue
@@ -321,8 +328,10 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
                                   and row["attempt"] // cfg.round_attempts == k], dtype=np.int64)
                         for k in range(r)]
             proposals[s.task] = round_proposals(plb.prior(s.task), by_round, cfg)[r]
+            replays[s.task] = tuple(tuple(int(v) for v in p) for b in by_round for p in b) if cfg.replay else ()
         out.append(replace(s, proposal=tuple(tuple(float(v) for v in p) for p in proposals[s.task]), round=r,
-                           round_end=(r + 1) * cfg.round_attempts, defensive=cfg.defensive))
+                           round_end=(r + 1) * cfg.round_attempts, defensive=cfg.defensive,
+                           replays=replays[s.task], replay=cfg.replay))
     return r, out
 
 

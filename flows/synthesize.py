@@ -199,7 +199,8 @@ def synthesis_dir(cfg: PipelineConfig) -> Path:
     resumes there."""
     p = cfg.proposal_config()
     how = "prior" if p.kind == "prior" else \
-        f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}" + (f"-d{p.defensive:g}" if p.defensive else "")
+        f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}" + (f"-d{p.defensive:g}" if p.defensive else "") \
+        + (f"-x{p.replay:g}" if p.replay else "")
     return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}"
 
 

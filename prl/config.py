@@ -188,6 +188,8 @@ class PipelineConfig:
     """Every choice keeps at least this fraction of its prior probability in the adaptive proposal."""
     proposal_defensive: float = ProposalConfig.defensive
     """Share of the adaptive rounds' plans drawn from the prior (every demo's weight is at most 1 / this)."""
+    proposal_replay: float = ProposalConfig.replay
+    """Share of the adaptive rounds' other plans that replay an earlier round's successful plan (0: none)."""
     workers: int = 2
     """Dask worker processes of the local cluster."""
     dask_address: str | None = None
@@ -269,7 +271,7 @@ class PipelineConfig:
         """Synthesis's proposal settings (``prl.proposal``)."""
         return ProposalConfig(kind=self.proposal, round_attempts=self.round_attempts,
                               smoothing=self.proposal_smoothing, floor=self.proposal_floor,
-                              defensive=self.proposal_defensive)
+                              defensive=self.proposal_defensive, replay=self.proposal_replay)
 
     def video_spec(self) -> VideoSpec:
         """The dataset video's settings (also when ``video`` is off: they are checked either way)."""

@@ -13,7 +13,15 @@ so no choice is ever dropped. Plans are drawn from the defensive mixture ``m = d
 (each plan from the prior with probability ``defensive``, else from q), so that every kept plan's weight
 ``p / m`` is at most ``1 / defensive``: the per-dimension floor alone bounds a weight only by
 ((1 + floor) / floor) ** 6, and on the tweeze one demo of 2,000 came to weigh 224x the mean (an effective sample
-size of 60; docs/speed.md). The proposal of round r depends only on
+size of 60; docs/speed.md). A product of per-dimension categoricals cannot hold the joint shape of the successful
+plans (the tweeze's pinches and disks mix into plans that are neither), so the adapted draws may also **replay**:
+with probability ``replay`` an adapted draw is the plan of one of the earlier rounds' successes, chosen uniformly
+among them (a plan that succeeded k times is chosen k times as often), else a draw from q. The mixture is then
+
+    m = defensive * p + (1 - defensive) * ((1 - replay) * q + replay * s),   s(plan) = (successes of plan) / (successes)
+
+which is still exact to evaluate for any plan, and every weight is still at most ``1 / defensive``. The proposal of
+round r depends only on
 the attempts of rounds < r, which are themselves fixed by the run seed: the result does not depend on the
 number of workers, nor on which shard finished first.
 
@@ -54,6 +62,9 @@ class ProposalConfig:
     defensive: float = 0.2
     """Share of plans drawn from the prior in the adaptive rounds (the defensive mixture: weights <= 1 / defensive);
     0 draws every plan from the adapted proposal (no coin is tossed; weights are bounded by the floor alone)."""
+    replay: float = 0.0
+    """Share of the adapted draws (those not from the prior) that replay the plan of an earlier round's success
+    (module docstring); 0 replays nothing and tosses no coin for it."""
 
     def __post_init__(self) -> None:
         if self.kind not in PROPOSALS:
@@ -66,6 +77,8 @@ class ProposalConfig:
             raise ValueError(f"proposal floor must be a number in (0, 1), got {self.floor!r}")
         if not _number(self.defensive) or not 0.0 <= self.defensive <= 1.0:
             raise ValueError(f"proposal defensive share must be a number in [0, 1], got {self.defensive!r}")
+        if not _number(self.replay) or not 0.0 <= self.replay <= 1.0:
+            raise ValueError(f"proposal replay share must be a number in [0, 1], got {self.replay!r}")
 
 
 def _number(value: object) -> bool:
@@ -95,13 +108,26 @@ def sample_plan(probs: Sequence[np.ndarray], rng: np.random.Generator) -> np.nda
 
 
 def sample_mixture(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
-                   rng: np.random.Generator) -> np.ndarray:
-    """One plan of the defensive mixture: from ``prior`` with probability ``defensive``, else from ``probs``. When
-    ``probs`` is the prior (round 0) the plan is drawn as a prior-only run draws it (no coin is tossed), so round 0
-    of an adaptive run attempts the very plans of a prior run; with ``defensive`` 0 no coin is tossed either."""
-    if _same(prior, probs) or defensive <= 0.0:
-        return sample_plan(probs, rng)
-    return sample_plan(prior if rng.random() < defensive else probs, rng)
+                   rng: np.random.Generator, replays: np.ndarray | None = None, replay: float = 0.0) -> np.ndarray:
+    """One plan of the mixture (module docstring): from ``prior`` with probability ``defensive``, else one of
+    ``replays`` (earlier successes' plans, rows) with probability ``replay``, else from ``probs``. When ``probs`` is
+    the prior and there is nothing to replay (round 0) the plan is drawn as a prior-only run draws it (no coin is
+    tossed), so round 0 of an adaptive run attempts the very plans of a prior run; no coin is tossed for a share
+    of 0 either."""
+    replays = _replays(replays, len(prior))
+    if not (replay > 0.0 and len(replays)):
+        if _same(prior, probs) or defensive <= 0.0:
+            return sample_plan(probs, rng)
+        return sample_plan(prior if rng.random() < defensive else probs, rng)
+    if defensive > 0.0 and rng.random() < defensive:
+        return sample_plan(prior, rng)
+    if rng.random() < replay:
+        return replays[int(rng.integers(len(replays)))].copy()
+    return sample_plan(probs, rng)
+
+
+def _replays(replays: np.ndarray | Sequence[Sequence[int]] | None, n_dims: int) -> np.ndarray:
+    return np.asarray(replays if replays is not None else [], dtype=np.int64).reshape(-1, n_dims)
 
 
 def _same(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> bool:
@@ -109,14 +135,23 @@ def _same(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> bool:
 
 
 def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
-                     plan: Sequence[int]) -> float:
-    """log of ``defensive * prior(plan) + (1 - defensive) * probs(plan)``."""
+                     plan: Sequence[int], replays: np.ndarray | None = None, replay: float = 0.0) -> float:
+    """log of ``m(plan)``, the probability that ``sample_mixture`` with the same arguments draws ``plan``:
+    ``defensive * prior + (1 - defensive) * ((1 - replay) * probs + replay * share of plan among replays)``."""
     a, b = log_prob(prior, plan), log_prob(probs, plan)
-    if defensive >= 1.0 or _same(prior, probs):  # round 0: exactly the prior's
-        return a
-    if defensive <= 0.0:
-        return b
-    return float(np.logaddexp(np.log(defensive) + a, np.log1p(-defensive) + b))
+    replays = _replays(replays, len(prior))
+    if not (replay > 0.0 and len(replays)):
+        if defensive >= 1.0 or _same(prior, probs):  # round 0: exactly the prior's
+            return a
+        if defensive <= 0.0:
+            return b
+        return float(np.logaddexp(np.log(defensive) + a, np.log1p(-defensive) + b))
+    share = float(np.mean(np.all(replays == np.asarray(plan, dtype=np.int64), axis=1)))
+    terms = [np.log(defensive) + a if defensive > 0.0 else -np.inf]
+    if defensive < 1.0:
+        terms.append(np.log1p(-defensive) + np.log1p(-replay) + b if replay < 1.0 else -np.inf)
+        terms.append(np.log1p(-defensive) + np.log(replay) + np.log(share) if share > 0.0 else -np.inf)
+    return float(np.logaddexp.reduce(terms))
 
 
 def adapt(current: Sequence[np.ndarray], prior: Sequence[np.ndarray], successes: np.ndarray,

@@ -239,6 +239,28 @@ def test_rounds_do_not_depend_on_shard_order_and_resume_after_a_kill_between_rou
     assert rows[0]["prior_logp"] == rows[0]["proposal_logp"]  # round 0 draws from the prior
 
 
+def test_a_round_replays_the_earlier_rounds_successes_of_every_shard(tmp_path: Path) -> None:
+    """Rounds of 2 attempts: shard 0 kept plans A (attempt 0, round 0) and B (attempt 2, round 1), shard 1 kept C
+    (attempt 1, round 0). Round 1's specs replay A and C, in shard order, and not B (a round-1 success); with a
+    replay share of 0 they replay nothing."""
+    from envs.synthesis import round_specs
+    from prl.proposal import ProposalConfig
+
+    plan_a, plan_b, plan_c, other = [0, 3, 2, 0, 0, 1], [1, 3, 2, 0, 0, 1], [0, 1, 2, 0, 0, 1], [0, 0, 0, 0, 0, 0]
+    logs = {0: [(plan_a, True), (other, False), (plan_b, True)], 1: [(other, False), (plan_c, True)]}
+    specs = [ShardSpec("hammer", k, 5, 0, tmp_path) for k in logs]
+    for spec in specs:
+        spec.dir.mkdir(parents=True)
+        rows = [{"attempt": j, "seed": j, "plan": plan, "round": j // 2, "success": ok, "measure": 0.0}
+                for j, (plan, ok) in enumerate(logs[spec.shard])]
+        (spec.dir / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    r, todo = round_specs(specs, ProposalConfig(round_attempts=2, replay=0.5))
+    assert r == 1 and [s.shard for s in todo] == [0, 1]
+    assert all(s.replays == (tuple(plan_a), tuple(plan_c)) and s.replay == 0.5 for s in todo)
+    _, todo = round_specs(specs, ProposalConfig(round_attempts=2))
+    assert all(s.replays == () and s.replay == 0.0 for s in todo)
+
+
 def test_the_progress_tally_reads_only_new_complete_lines(tmp_path: Path) -> None:
     from flows.synthesize import _LogTally
 

@@ -236,3 +236,77 @@ def test_the_synthesis_directory_names_the_defensive_share_unless_it_is_zero(tmp
 
     names = [synthesis_dir(make_config(output_dir=str(tmp_path), proposal_defensive=d)).name for d in (0.2, 0.0)]
     assert names == ["seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2", "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2"]
+
+
+def test_the_replay_mixture_by_hand_and_its_draws() -> None:
+    """m = d p + (1 - d) ((1 - x) q + x s) with d = 0.2, x = 0.5 and the replays [1, 2] (twice) and [0, 0]: for
+    [1, 2], p = 0.25, q = 0.375 and s = 2/3, so m = 0.05 + 0.8 (0.1875 + 0.3333) = 0.46667; for [0, 1], never a
+    success, s = 0: m = 0.2 * 0.15 + 0.4 * 0.25 * 0.15 = 0.045. Drawn 40,000 times, each plan's frequency is m."""
+    from prl.proposal import mixture_log_prob, sample_mixture
+
+    q = (np.array([0.25, 0.75]), np.array([0.35, 0.15, 0.5]))
+    replays = np.array([[1, 2], [0, 0], [1, 2]])
+    assert mixture_log_prob(PRIOR, q, 0.2, [1, 2], replays, 0.5) == pytest.approx(np.log(0.05 + 0.8 * (0.1875 + 1 / 3)))
+    assert mixture_log_prob(PRIOR, q, 0.2, [0, 1], replays, 0.5) == pytest.approx(np.log(0.2 * 0.15 + 0.4 * 0.25 * 0.15))
+    assert mixture_log_prob(PRIOR, q, 0.0, [0, 0], replays, 1.0) == pytest.approx(np.log(1 / 3))  # replays alone
+    rng = np.random.default_rng(3)
+    draws = np.array([sample_mixture(PRIOR, q, 0.2, rng, replays, 0.5) for _ in range(40_000)])
+    for plan in ([1, 2], [0, 1], [0, 0]):
+        want = np.exp(mixture_log_prob(PRIOR, q, 0.2, plan, replays, 0.5))
+        assert np.mean(np.all(draws == plan, axis=1)) == pytest.approx(want, abs=0.01)
+    # nothing to replay, or a share of 0: the draws and the log-probability of the mixture without replays
+    for seed in range(5):
+        for reps, share in ((replays, 0.0), (None, 0.5)):
+            assert sample_mixture(PRIOR, q, 0.2, np.random.default_rng(seed), reps, share).tolist() == \
+                sample_mixture(PRIOR, q, 0.2, np.random.default_rng(seed)).tolist()
+    assert mixture_log_prob(PRIOR, q, 0.2, [1, 2], replays, 0.0) == pytest.approx(np.log(0.35))
+    with pytest.raises(ValueError, match="replay share must be a number in \\[0, 1\\], got 1.5"):
+        ProposalConfig(replay=1.5)
+
+
+def test_replays_keep_the_weights_bounded_and_restore_the_prior() -> None:
+    """The bandit of ``test_the_defensive_mixture_bounds_every_weight`` with half the adapted draws replaying the
+    earlier rounds' successes: more successes per attempt, every raw weight still <= 1 / 0.2, and the weighted
+    kept plans still have the prior's choice frequencies."""
+    from prl.proposal import mixture_log_prob, sample_mixture
+
+    prior = (np.array([0.6, 0.3, 0.1]), np.array([0.5, 0.5]))
+    p_success = (np.array([0.05, 0.2, 0.9]), np.array([0.3, 0.6]))
+    want0 = prior[0] * p_success[0] / np.sum(prior[0] * p_success[0])
+    cfg = ProposalConfig(smoothing=0.7, floor=0.2, defensive=0.2, replay=0.5)
+
+    def run(replay: float) -> tuple[float, np.ndarray, list, list]:
+        rng = np.random.default_rng(1)
+        q, kept, prior_lp, mix_lp, successes_before = prior, [], [], [], np.zeros((0, 2), np.int64)
+        attempts = 0
+        for _ in range(20):
+            successes = []
+            for _ in range(2000):
+                plan = sample_mixture(prior, q, cfg.defensive, rng, successes_before, replay)
+                attempts += 1
+                if rng.random() < p_success[0][plan[0]] * p_success[1][plan[1]]:
+                    successes.append(plan)
+                    kept.append(plan)
+                    prior_lp.append(log_prob(prior, plan))
+                    mix_lp.append(mixture_log_prob(prior, q, cfg.defensive, plan, successes_before, replay))
+            q = adapt(q, prior, np.array(successes).reshape(-1, 2), cfg)
+            successes_before = np.concatenate([successes_before, np.array(successes).reshape(-1, 2)])
+        return len(kept) / attempts, np.array(kept), prior_lp, mix_lp
+
+    plain_yield = run(0.0)[0]
+    yield_, kept, prior_lp, mix_lp = run(cfg.replay)
+    assert yield_ > plain_yield  # replaying the best plans' successes pays on this bandit
+    assert np.exp(np.array(prior_lp) - np.array(mix_lp)).max() <= 1 / cfg.defensive + 1e-9
+    w = importance_weights(prior_lp, mix_lp)
+    np.testing.assert_allclose(weighted_choice_freqs(kept, (3, 2), w)[0], want0, atol=0.03)
+
+
+def test_the_synthesis_directory_names_the_replay_share_unless_it_is_zero(tmp_path) -> None:
+    from flows.synthesize import synthesis_dir
+    from prl.config import ConfigError, make_config
+
+    names = [synthesis_dir(make_config(output_dir=str(tmp_path), proposal_replay=x)).name for x in (0.5, 0.0)]
+    assert names == ["seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2-x0.5",
+                     "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2"]
+    with pytest.raises(ConfigError, match="replay share must be a number in \\[0, 1\\], got -1"):
+        make_config(output_dir=str(tmp_path), proposal_replay=-1)
