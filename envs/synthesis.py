@@ -6,7 +6,8 @@ depend on how many workers run the shards, nor on the order they run in. A shard
 has its share of successes (or ``max_attempts`` attempts).
 
 Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal (mixed with the
-prior, its defensive share, and with replays of earlier rounds' successful plans, its replay share), which changes between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
+prior, its defensive share, and with replays of earlier rounds' successful plans, its replay share), which changes
+between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
 every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
 rounds < r of all the task's shards, and round r + 1 starts when round r has ended everywhere. A prior run
 is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).

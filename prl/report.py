@@ -496,9 +496,10 @@ FIG8_TEXT = (
 REWARD_TEXT = (
     "The LN's reward is the task's measure in the episode's outcome (the paper's d, N, theta, l), and success is the "
     "task's rule, which on some tasks asks more than the measure carries (the unscrew's cap gripped at the end, the "
-    "tweeze's cube touched by no hand link, the hammer and the tweezers still on the table; `docs/tasks.md`). Where a failure is paid at least as much as a success, "
-    "RL can climb the reward away from success. Counted over the final evaluations of every point below; the "
-    "reward is in the task's unit (hammer and tweeze cm, sweep cubes, unscrew degrees; a variant as its base task).")
+    "tweeze's cube touched by no hand link, the hammer and the tweezers still on the table; `docs/tasks.md`). Where "
+    "a failure is paid at least as much as a success, RL can climb the reward away from success. Counted over the "
+    "final evaluations of every point below; the reward is in the task's unit (hammer and tweeze cm, sweep cubes, "
+    "unscrew degrees; a variant as its base task).")
 """What the report says of its reward table."""
 PROVENANCE_TEXT = (
     "Each summary records the code version of what decides its task's outcome (`prl.version.outcome_version`), the "
