@@ -230,6 +230,7 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     plb = load_plb()
     prior = plb.prior(spec.task)
     probs = as_probs(spec.proposal) if spec.proposal is not None else prior
+    replays = np.asarray(spec.replays, dtype=np.int64).reshape(-1, len(prior))  # once, not per attempt
     end = spec.max_attempts if spec.round_end is None else min(spec.max_attempts, spec.round_end)
 
     measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
@@ -245,18 +246,18 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 plan = [int(v) for v in demo.plan]
-                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan),
+                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan, replays),
                        "success": True, "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
                     env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)
                 rng = np.random.default_rng(plan_seed)
                 plan = sample_plan(probs, rng) if spec.defensive is None else \
-                    sample_mixture(prior, probs, spec.defensive, rng, spec.replays, spec.replay)
+                    sample_mixture(prior, probs, spec.defensive, rng, replays, spec.replay)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
                 row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
-                       **_logps(spec, probs, prior, plan)}
+                       **_logps(spec, probs, prior, plan, replays)}
                 try:
                     result = executor.run(plan, seed=scene_seed)
                     if result.success:
@@ -290,10 +291,11 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     return replace(shard_result(spec), seconds=time.perf_counter() - t0)
 
 
-def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any) -> dict[str, Any]:
-    """The attempt's round and its plan's log-probabilities under the distribution that drew it and the prior."""
+def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any, replays: np.ndarray) -> dict[str, Any]:
+    """The attempt's round and its plan's log-probabilities under the distribution that drew it and the prior
+    (``replays``: ``spec.replays`` as an array)."""
     drew = log_prob(probs, plan) if spec.defensive is None else \
-        mixture_log_prob(prior, probs, spec.defensive, plan, spec.replays, spec.replay)
+        mixture_log_prob(prior, probs, spec.defensive, plan, replays, spec.replay)
     return {"round": int(spec.round), "proposal_logp": drew, "prior_logp": log_prob(prior, plan)}
 
 
