@@ -145,9 +145,18 @@ def _worker_api_url() -> str:
         return str(client.api_url).rstrip("/")
 
 
+def _worker_profiles() -> bool:
+    """Whether this Dask worker runs distributed's sampling profiler (its periodic callbacks)."""
+    from distributed import get_worker
+
+    return any(name.startswith("profile") for name in get_worker().periodic_callbacks)
+
+
 @pytest.mark.sim
 def test_local_dask_workers_report_to_this_process_api() -> None:
-    """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own."""
+    """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own; and
+    they run without distributed's sampling profiler, whose stack trees every scene rebuild's gc.collect() would
+    walk (``make_task_runner``)."""
     import httpx
     from prefect import flow, task
     from prefect.settings import PREFECT_API_URL
@@ -158,13 +167,17 @@ def test_local_dask_workers_report_to_this_process_api() -> None:
         pytest.skip(f"PREFECT_API_URL is set ({PREFECT_API_URL.value()}): no temporary server to share")
     worker_task = task(_worker_api_url, name="worker-api-url")
 
-    @flow(task_runner=make_task_runner(2, None))
-    def probe() -> list[str]:
-        return [f.result() for f in [worker_task.submit(), worker_task.submit()]]
+    profiles_task = task(_worker_profiles, name="worker-profiles")
 
-    urls = probe()
+    @flow(task_runner=make_task_runner(2, None))
+    def probe() -> tuple[list[str], list[bool]]:
+        return ([f.result() for f in [worker_task.submit(), worker_task.submit()]],
+                [f.result() for f in [profiles_task.submit(), profiles_task.submit()]])
+
+    urls, profiles = probe()
     here = _worker_api_url()
     assert urls == [here, here]
+    assert profiles == [False, False]
     assert here.startswith("http://127.0.0.1:")
     assert httpx.get(here + "/health", timeout=10).status_code == 200
 
