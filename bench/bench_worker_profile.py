@@ -67,7 +67,7 @@ def episodes_in_worker(pointnet: str, seconds: float, seed: int) -> dict:
 
 def measure(profiler: bool, pointnet: Path, seconds: float, seed: int) -> dict:
     """``episodes_in_worker`` in a fresh one-worker local cluster with the worker profiler ``profiler``."""
-    import dask
+    import dask  # heavy: dask and distributed, only to measure
     from distributed import Client, LocalCluster
 
     with dask.config.set({"distributed.worker.profile.enabled": profiler}), \
