@@ -70,8 +70,8 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     The local workers run without distributed's sampling profiler (``distributed.worker.profile.enabled``, passed
     to them in the nanny's copy of this process's Dask config). It keeps a tree of the running task's stacks per
     second for the last 1,000 seconds: Python objects made after ``fast_resets()`` froze the heap, which every
-    scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point after 20 min of training spent
-    about a third of its time in that walk; ``bench/bench_worker_profile.py``).
+    scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
+    of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``).
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
