@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import dask
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect_dask import DaskTaskRunner
@@ -67,22 +66,22 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     which took about half of each worker's CPU: 1.79 worker-seconds per attempt against 0.83 for the
     same shards run by bare processes, 0.84 with it (2 workers, 30 hammer demos, steady part, 2026-11-30).
 
-    The local workers run without distributed's sampling profiler (``distributed.worker.profile.enabled``, passed
-    to them in the nanny's copy of this process's Dask config). It keeps a tree of the running task's stacks per
-    second for the last 1,000 seconds: Python objects made after ``fast_resets()`` froze the heap, which every
-    scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
+    The local workers run without distributed's sampling profiler (``distributed.worker.profile.enabled`` in the
+    config each nanny hands its worker; this process's own Dask config is left as it is). It keeps a tree of the
+    running task's stacks per second for the last 1,000 seconds: Python objects made after ``fast_resets()`` froze
+    the heap, which every scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
     of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``).
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
-    dask.config.set({"distributed.worker.profile.enabled": False})
     # no pages of scheduler and worker start-up chatter: the workers read dask's logging level from the
     # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
     logging.getLogger("distributed").setLevel(logging.WARNING)
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                           "dashboard_address": None, "env": worker_env(),
-                                          "silence_logs": logging.WARNING})
+                                          "silence_logs": logging.WARNING,
+                                          "config": {"distributed.worker.profile.enabled": False}})
 
 
 def worker_env() -> dict[str, str]:
