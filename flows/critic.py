@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from flows.evaluate_rn import find_pointnet
+from prl.critic import CriticConfig
 from prl.stats import format_rate
 
 #: The plans run, in order: the RN's two decodings without the critic, then the two with it.
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=50, help="unseen scenes of the RN evaluation")
     parser.add_argument("--seed", type=int, default=0, help="run seed of those scenes and of the critic")
     parser.add_argument("--top-k", type=int, default=20, help="the RN's best library plans the critic chooses among")
-    parser.add_argument("--epochs", type=int, default=60)
+    parser.add_argument("--epochs", type=int, default=CriticConfig.epochs)
     parser.add_argument("--kinds", default=",".join(KINDS), help=f"plans run, of {','.join(KINDS)}")
     args = parser.parse_args(argv)
     kinds = [k for k in args.kinds.split(",") if k]
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     from envs.trials import eval_scene_seeds, run_policy  # heavy: loads the simulator
-    from prl.critic import CriticConfig, save_critic, train_critic
+    from prl.critic import save_critic, train_critic
     from prl.features import split_by_seed
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet
