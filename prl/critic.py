@@ -37,6 +37,7 @@ from torch.nn import functional as F
 from prl.atomic import atomic_file
 from prl.constants import RS_DIMS
 from prl.rn import as_features, as_labels, is_int, is_number
+from prl.rn_checkpoint import read_checkpoint
 from prl.rn_decode import check_library
 
 #: Checkpoint format tag written by :func:`save_critic`.
@@ -230,15 +231,7 @@ def save_critic(model: PlanCritic, path: str | Path, meta: dict[str, Any] | None
 def load_critic(path: str | Path) -> PlanCritic:
     """Read a :func:`save_critic` file (model in eval mode, ``model.config``, ``model.meta``); FileNotFoundError
     names a missing path, ValueError a file of another kind."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"critic checkpoint not found: {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a bad file
-        raise ValueError(f"{path} is not a readable critic checkpoint: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not a critic checkpoint of format {CHECKPOINT_FORMAT!r}")
+    payload = read_checkpoint(Path(path), CHECKPOINT_FORMAT, "critic")
     raw = payload["config"]
     cfg = CriticConfig(**{**raw, "dims": tuple(raw["dims"])})
     model = PlanCritic(int(payload["in_dim"]), cfg.dims, cfg.hidden, cfg.dropout)

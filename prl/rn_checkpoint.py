@@ -47,21 +47,29 @@ def save_rn(model: RepresentationNetwork, cfg: RNConfig, layout: FeatureLayout, 
     return path
 
 
+def read_checkpoint(path: Path, fmt: str, kind: str) -> dict[str, Any]:
+    """The payload of a torch checkpoint written with format tag ``fmt`` (read with ``weights_only=True``);
+    FileNotFoundError names a missing path, ValueError a file that is not a readable ``kind`` checkpoint of that
+    format."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{kind} checkpoint not found: {path}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a bad file
+        raise ValueError(f"{path} is not a readable {kind} checkpoint: {exc}") from exc
+    if not isinstance(payload, dict) or payload.get("format") != fmt:
+        got = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+        raise ValueError(f"{path} is not a {kind} checkpoint of format {fmt!r} (got {got!r})")
+    return payload
+
+
 def load_rn(path: str | Path, expected_layout: FeatureLayout | None = None) -> RepresentationNetwork:
     """Read a :func:`save_rn` checkpoint: the model in eval mode, with ``model.config`` and ``model.layout``.
 
     FileNotFoundError names a missing path; ValueError names both layouts when ``expected_layout``
     differs from the stored one, or says what is wrong with a file that is not an RN checkpoint."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"RN checkpoint not found: {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a bad file
-        raise ValueError(f"{path} is not a readable RN checkpoint: {exc}") from exc
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        got = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
-        raise ValueError(f"{path} is not an RN checkpoint of format {CHECKPOINT_FORMAT!r} (got {got!r})")
+    payload = read_checkpoint(path, CHECKPOINT_FORMAT, "RN")
     layout = FeatureLayout.from_json(payload["layout"])
     if expected_layout is not None and layout != expected_layout:
         raise ValueError(f"{path} was trained on feature layout [{layout.describe()}], but the caller expects "
