@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from flows.evaluate_rn import find_pointnet
+from prl.atomic import atomic_file
 from prl.critic import CriticConfig
 from prl.stats import format_rate
 
@@ -57,9 +58,8 @@ def cached_features(path: Path, task: str, seeds: np.ndarray, pointnet_path: Pat
                 return data["x"]
     x, _ = attempt_features(task, seeds.tolist(), load_pointnet(pointnet_path), n_points)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, x=x, key=np.array(key))
-    tmp.replace(path)
+    with atomic_file(path, "wb") as fh:
+        np.savez(fh, x=x, key=np.array(key))
     return x
 
 
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         results[kind] = run_policy(args.task, policy, eval_seeds, desc=f"{args.task} {kind} plans")
         print(table_row(kind, results[kind], families), flush=True)
     summary = {k: [int(o.success) for o in v] for k, v in results.items()}
-    (out_dir / f"critic-eval-{args.task}.json").write_text(json.dumps(
+    (out_dir / f"critic-eval-{args.task}-seed{args.seed}.json").write_text(json.dumps(
         {"task": args.task, "top_k": args.top_k, "seeds": eval_seeds, "families": families, "success": summary,
          "held_out": best}, indent=1))
     return 0
