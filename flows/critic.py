@@ -45,13 +45,15 @@ def attempts_of(synthesis_dir: Path, task: str) -> tuple[np.ndarray, np.ndarray,
 
 
 def cached_features(path: Path, task: str, seeds: np.ndarray, pointnet_path: Path, n_points: int) -> np.ndarray:
-    """x of the scenes of ``seeds``: read from ``path`` when it was computed for the same seeds, PointNet and
-    point count, else computed (``envs.attempt_features``) and written there."""
+    """x of the scenes of ``seeds``: read from ``path`` when it was computed for the same seeds, PointNet, point
+    count and code of the task's scenes (``prl.version.outcome_version``), else computed (``envs.attempt_features``)
+    and written there."""
     from envs.attempt_features import attempt_features  # heavy: loads the simulator
     from prl.pointnet import load_pointnet
-    from prl.version import file_digest
+    from prl.version import file_digest, outcome_version
 
-    key = hashlib.sha256(f"{task}/{file_digest(pointnet_path)}/{n_points}/".encode() + seeds.tobytes()).hexdigest()
+    key = hashlib.sha256(f"{task}/{outcome_version(task)}/{file_digest(pointnet_path)}/{n_points}/".encode()
+                         + seeds.tobytes()).hexdigest()
     if path.is_file():
         with np.load(path) as data:
             if str(data["key"]) == key:
@@ -64,9 +66,9 @@ def cached_features(path: Path, task: str, seeds: np.ndarray, pointnet_path: Pat
 
 
 def critic_policy(model: Any, critic: Any, pointnet: Any, task: str, seeds: list[int], n_points: int,
-                  top_k: int | None, families: dict[int, int]):
+                  top_k: int | None):
     """An ``envs.trials.Policy``: the critic's choice among the RN's ``top_k`` library plans (all of them when
-    None) for the live scene; records each scene's family in ``families`` for the table."""
+    None) for the live scene."""
     from prl.critic import critic_plan
     from prl.features import scene_features  # heavy: trimesh
     from prl.plb import load_plb
@@ -76,7 +78,6 @@ def critic_policy(model: Any, critic: Any, pointnet: Any, task: str, seeds: list
     library = model.plan_libraries[task]
 
     def choose(i: int, env: Any, x_manip: np.ndarray) -> list[int]:
-        families[i] = int(env.scene_params.get("family", -1))
         x = scene_features(task, int(seeds[i]), dict(env.scene_params), x_manip, texts[i % len(texts)], pointnet,
                            n_points)
         probs = predict_proba(model, x) if top_k is not None else None
@@ -155,13 +156,14 @@ def main(argv: list[str] | None = None) -> int:
         if kind in ("rn", "rn_library"):
             inner = rn_policy(model, pointnet, args.task, list(load_plb().texts(args.task)), eval_seeds, n_points,
                               kind)
-
-            def policy(i, env, x_manip, inner=inner):
-                families[i] = int(env.scene_params.get("family", -1))
-                return inner(i, env, x_manip)
         else:
-            policy = critic_policy(model, critic, pointnet, args.task, eval_seeds, n_points,
-                                   args.top_k if kind == "rn_critic" else None, families)
+            inner = critic_policy(model, critic, pointnet, args.task, eval_seeds, n_points,
+                                  args.top_k if kind == "rn_critic" else None)
+
+        def policy(i, env, x_manip, inner=inner):  # the scene's family, for the table only
+            families[i] = int(env.scene_params.get("family", -1))
+            return inner(i, env, x_manip)
+
         results[kind] = run_policy(args.task, policy, eval_seeds, desc=f"{args.task} {kind} plans")
         print(table_row(kind, results[kind], families), flush=True)
     summary = {k: [int(o.success) for o in v] for k, v in results.items()}

@@ -36,9 +36,10 @@ from torch.nn import functional as F
 
 from prl.atomic import atomic_file
 from prl.constants import RS_DIMS
-from prl.rn import as_features, as_labels, is_int, is_number
+from prl.rn import STD_FLOOR, as_features, as_labels, is_int, is_number
 from prl.rn_checkpoint import read_checkpoint
-from prl.rn_decode import check_library
+from prl.rn_decode import check_library, library_scores
+from prl.rn_train import feature_stats
 
 #: Checkpoint format tag written by :func:`save_critic`.
 CHECKPOINT_FORMAT = "prl-critic/1"
@@ -97,9 +98,9 @@ class PlanCritic(nn.Module):
                                   nn.Linear(hidden // 2, 1))
 
     def set_standardisation(self, mean: np.ndarray, std: np.ndarray) -> None:
-        """Centre by ``mean``; scale by ``std`` where it is not (nearly) 0."""
+        """Centre by ``mean``; scale by ``std`` where it is not below ``prl.rn.STD_FLOOR`` (the RN's rule)."""
         self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
-        self.scale.copy_(torch.as_tensor(np.where(np.asarray(std) > 1e-6, std, 1.0), dtype=torch.float32))
+        self.scale.copy_(torch.as_tensor(np.where(np.asarray(std) < STD_FLOOR, 1.0, std), dtype=torch.float32))
 
     def forward(self, x: Tensor, plan: Tensor) -> Tensor:
         onehot = torch.cat([F.one_hot(plan[:, i], m) for i, m in enumerate(self.dims)], dim=1).float()
@@ -139,8 +140,7 @@ def train_critic(x: Any, plans: Any, success: Any, cfg: CriticConfig | None = No
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
         model = PlanCritic(xt.shape[1], cfg.dims, cfg.hidden, cfg.dropout)
-        arr = xt.numpy().astype(np.float64)
-        model.set_standardisation(arr.mean(axis=0), arr.std(axis=0))
+        model.set_standardisation(*feature_stats(xt.numpy()))
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         best, best_state = math.inf, None
         for _ in tqdm(range(cfg.epochs), desc="critic", unit="epoch", disable=not progress):
@@ -209,8 +209,7 @@ def critic_plan(model: PlanCritic, x: Any, library: Any, rn_probs: Sequence[np.n
     else:
         if not is_int(top_k) or top_k < 1:
             raise ValueError(f"top_k must be an integer >= 1, got {top_k!r}")
-        score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(rn_probs))
-        order = np.argsort(-score, axis=1, kind="stable")[:, :min(top_k, k)]
+        order = np.argsort(-library_scores(rn_probs, lib), axis=1, kind="stable")[:, :min(top_k, k)]
     cand = lib[order]  # (N, c, n)
     c = cand.shape[1]
     logits = critic_logits(model, np.repeat(xa, c, axis=0), cand.reshape(n * c, -1)).numpy().reshape(n, c)

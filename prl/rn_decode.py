@@ -44,13 +44,19 @@ def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.n
     learns p(plan | scene, success), which by Bayes is proportional to prior(plan) * P(success | plan,
     scene). Dividing by the prior ranks plans by their success probability instead of by how often
     the sampler tried them."""
+    lib = check_library(library, [p.shape[1] for p in probs])
+    return lib[np.argmax(library_scores(probs, lib, prior), axis=1)]
+
+
+def library_scores(probs: Sequence[np.ndarray], lib: np.ndarray, prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """(N, K) joint log-scores ``sum_i log p_i(choice_i)`` of the K rows of a checked library ``lib`` (minus the
+    prior's, when given) for :func:`library_plan` and the critic's candidates (``prl.critic.critic_plan``)."""
     dims = [p.shape[1] for p in probs]
-    lib = check_library(library, dims)
-    # (N, K) scores; the floor keeps log finite where a probability underflows to 0
+    # the floor keeps log finite where a probability underflows to 0
     score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))
     if prior is not None:
         score = score - sum(np.log(q)[lib[:, i]] for i, q in enumerate(check_prior(prior, dims)))
-    return lib[np.argmax(score, axis=1)]
+    return score
 
 
 def check_prior(prior: Any, dims: Sequence[int], what: str = "prior") -> tuple[np.ndarray, ...]:

@@ -32,12 +32,12 @@ def test_attempts_are_read_shard_by_shard_without_the_ones_that_raised(tmp_path)
 
 
 def test_cached_features_are_reused_only_for_the_same_seeds_and_pointnet(tmp_path):
-    from prl.version import file_digest
+    from prl.version import file_digest, outcome_version
 
     pn = tmp_path / "pn.pt"
     pn.write_bytes(b"weights")
     seeds = np.array([4, 5], dtype=np.int64)
-    key = hashlib.sha256(f"sweep/{file_digest(pn)}/64/".encode() + seeds.tobytes()).hexdigest()
+    key = hashlib.sha256(f"sweep/{outcome_version('sweep')}/{file_digest(pn)}/64/".encode() + seeds.tobytes()).hexdigest()
     path = tmp_path / "x.npz"
     np.savez(path, x=np.full((2, 3), 7.0, np.float32), key=np.array(key))
     np.testing.assert_array_equal(cached_features(path, "sweep", seeds, pn, 64), np.full((2, 3), 7.0))
