@@ -9,7 +9,9 @@ the cost of the orchestration (1.0 = none; worker start-up and an unevenly endin
 count against it). Then the paper profile's wall time is extrapolated from the 2-worker rate.
 Run it long enough (minutes per run) that the workers' start-up (about 10 s of imports, once per run)
 and the last, unevenly ending shard do not dominate: ``--demos 120 --shards 12``.
-``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
+With several ``--tasks`` (``hammer,sweep``) each task's rounds run on their own (``envs.synthesis.rounds_by_task``),
+as in the pipeline's four-task runs: a task's next round fills the workers while another task's round ends.
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
 """
 
 from __future__ import annotations
@@ -22,23 +24,25 @@ from pathlib import Path
 from prl.proposal import PROPOSALS, ProposalConfig
 
 
-def _run(workers: int, demos: int, shards: int, seed: int, out: Path, proposal: ProposalConfig) -> tuple[float, int, int]:
+def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out: Path,
+         proposal: ProposalConfig) -> tuple[float, int, int]:
     from flows.synthesize import shard_specs, synthesize  # heavy: loads the simulator
 
-    specs = shard_specs(["hammer"], demos, seed, shards, out)
+    specs = shard_specs(tasks, demos, seed, shards, out)
     t0 = time.perf_counter()
     results = synthesize(specs, workers=workers, proposal=proposal)
     wall = time.perf_counter() - t0
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
 
 
-def _run_bare(demos: int, shards: int, seed: int, out: Path, proposal: ProposalConfig) -> tuple[float, int, int]:
+def _run_bare(tasks: list[str], demos: int, shards: int, seed: int, out: Path,
+              proposal: ProposalConfig) -> tuple[float, int, int]:
     import envs  # noqa: F401  (registers the hand and the tasks)
     from envs.synthesis import run_shard, synthesize_rounds
     from flows.synthesize import shard_specs
 
     t0 = time.perf_counter()
-    results = synthesize_rounds(shard_specs(["hammer"], demos, seed, shards, out), proposal,
+    results = synthesize_rounds(shard_specs(tasks, demos, seed, shards, out), proposal,
                                 lambda todo: [run_shard(spec, keep_env=True) for spec in todo])
     wall = time.perf_counter() - t0
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
@@ -46,7 +50,8 @@ def _run_bare(demos: int, shards: int, seed: int, out: Path, proposal: ProposalC
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--demos", type=int, default=8, help="successful demos per run")
+    parser.add_argument("--demos", type=int, default=8, help="successful demos per task and run")
+    parser.add_argument("--tasks", default="hammer", help="comma-separated tasks synthesised together")
     parser.add_argument("--shards", type=int, default=4, help="more shards than workers evens out the load")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--no-bare", action="store_true", help="skip the bare in-process run")
@@ -55,12 +60,15 @@ def main() -> None:
     parser.add_argument("--round-attempts", type=int, default=ProposalConfig.round_attempts)
     args = parser.parse_args()
     proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
+    tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, 2):
-            rows[workers] = _run(workers, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}", proposal)
-        bare = None if args.no_bare else _run_bare(args.demos, args.shards, args.seed, Path(tmp) / "bare", proposal)
-    print(f"\nhammer synthesis, {args.demos} demos in {args.shards} shards, run seed {args.seed}, {args.proposal} "
+            rows[workers] = _run(workers, tasks, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}",
+                                 proposal)
+        bare = None if args.no_bare else _run_bare(tasks, args.demos, args.shards, args.seed, Path(tmp) / "bare",
+                                                   proposal)
+    print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
           f"proposal ({args.round_attempts} attempts per shard and round)")
     print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
     for workers, (wall, demos, attempts) in rows.items():
@@ -74,7 +82,8 @@ def main() -> None:
     speedup = rows[1][0] / rows[2][0]
     print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {rows[1][2] == rows[2][2]})")
     per_min = 60 * rows[2][1] / rows[2][0]
-    print(f"extrapolated paper profile (2,000 hammer demos) at this yield on 2 workers: {2000 / per_min / 60:.1f} h")
+    print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers: "
+          f"{2000 * len(tasks) / per_min / 60:.1f} h")
 
 
 if __name__ == "__main__":

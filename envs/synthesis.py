@@ -7,10 +7,10 @@ has its share of successes (or ``max_attempts`` attempts).
 
 Plans are drawn from the task's proposal (``prl.proposal``): its prior, or the adaptive proposal (mixed with the
 prior, its defensive share, and with replays of earlier rounds' successful plans, its replay share), which changes
-between rounds of ``round_attempts`` attempts per shard. ``synthesize_rounds`` runs the rounds:
+between rounds of ``round_attempts`` attempts per shard. ``rounds_by_task`` runs the rounds:
 every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
-rounds < r of all the task's shards, and round r + 1 starts when round r has ended everywhere. A prior run
-is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
+rounds < r of all the task's shards, and the task's round r + 1 starts when its round r has ended in all
+its shards (other tasks' rounds need not have ended). A prior run is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
 
 On disk, per shard ``<out>/<task>/shard<k>/``:
 
@@ -316,7 +316,7 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
     if not todo:
         return -1, []
     if cfg.kind == "prior":
-        return 0, [replace(s, proposal=None, round=0, round_end=None) for s in todo]
+        return 0, longest_first([replace(s, proposal=None, round=0, round_end=None) for s in todo], logs)
     r = min(len(logs[s.task, s.shard]) // cfg.round_attempts for s in todo)
     plb = load_plb()
     out = []
@@ -335,23 +335,75 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
         out.append(replace(s, proposal=tuple(tuple(float(v) for v in p) for p in proposals[s.task]), round=r,
                            round_end=(r + 1) * cfg.round_attempts, defensive=cfg.defensive,
                            replays=replays[s.task], replay=cfg.replay))
-    return r, out
+    return r, longest_first(out, logs)
+
+
+def expected_attempts(spec: ShardSpec, attempts: int, successes: int, yield_: float) -> float:
+    """Attempts a shard with these counts is expected to make in ``spec``'s call: its missing demos over the
+    task's yield so far (1 when unknown), capped by the attempts left in the round and overall."""
+    left = min(spec.max_attempts, spec.round_end if spec.round_end is not None else spec.max_attempts) - attempts
+    need = max(spec.n_success - successes, 0) / max(yield_, 1.0 / max(spec.max_attempts, 1))
+    return float(max(min(left, need), 0))
+
+
+def longest_first(todo: list[ShardSpec], logs: dict[tuple[str, int], list[dict]]) -> list[ShardSpec]:
+    """``todo`` with the shards expected to run longest first (``expected_attempts``, stable): workers take
+    shard-rounds in submission order, and a round that starts its longest shard last ends waiting for it
+    while the other workers idle. The order changes no attempt (module docstring)."""
+    rows = {t: [r for (task, _), rs in logs.items() if task == t for r in rs] for t in {s.task for s in todo}}
+    yields = {t: (sum(r["success"] for r in rs) / len(rs) if rs else 1.0) for t, rs in rows.items()}
+
+    def cost(s: ShardSpec) -> float:
+        log = logs[s.task, s.shard]
+        return expected_attempts(s, len(log), sum(r["success"] for r in log), yields[s.task])
+
+    return sorted(todo, key=cost, reverse=True)
+
+
+def rounds_by_task(specs: Sequence[ShardSpec], cfg: ProposalConfig, start: Callable[[list[ShardSpec]], Any],
+                   collect: Callable[[Any], list[ShardResult] | None], idle: Callable[[], None],
+                   on_round: Callable[[int, list[ShardResult]], None] | None = None) -> list[ShardResult]:
+    """Run (or resume) a synthesis run, each task's rounds on their own: a task's round r + 1 starts as soon as
+    the task's round r has ended in all its shards, whatever the other tasks' rounds (a task's proposal reads
+    only its own attempts, so the attempts are those of the tasks in lockstep). ``start(todo)`` launches one
+    task's round (``round_specs``) and returns a handle; ``collect(handle)`` returns the round's results once it
+    has ended, else None; ``idle()`` is called when no round has ended since the last look; ``on_round(round,
+    results)`` after each round. Returns each spec's ``shard_result`` at the end, in the order of ``specs``."""
+    groups: dict[str, list[ShardSpec]] = {}
+    for spec in specs:
+        groups.setdefault(spec.task, []).append(spec)
+    running: dict[str, tuple[int, Any]] = {}
+
+    def launch(task: str) -> None:
+        r, todo = round_specs(groups[task], cfg)
+        if todo:
+            running[task] = (r, start(todo))
+        else:
+            running.pop(task, None)
+
+    for task in groups:
+        launch(task)
+    while running:
+        ended = False
+        for task, (r, handle) in list(running.items()):
+            results = collect(handle)
+            if results is None:
+                continue
+            ended = True
+            if on_round is not None:
+                on_round(r, results)
+            launch(task)
+        if not ended:
+            idle()
+    return [shard_result(s) for s in specs]
 
 
 def synthesize_rounds(specs: Sequence[ShardSpec], cfg: ProposalConfig,
                       run: Callable[[list[ShardSpec]], list[ShardResult]],
                       on_round: Callable[[int, list[ShardResult]], None] | None = None) -> list[ShardResult]:
-    """Run (or resume) a synthesis run round by round (module docstring): ``run`` executes one round's shard
-    specs (in this process, or on Dask workers) and returns their results; ``on_round(round, results)`` is
-    called after each. Returns each spec's ``shard_result`` at the end, in the order of ``specs``."""
-    while True:
-        r, todo = round_specs(specs, cfg)
-        if not todo:
-            break
-        results = run(todo)
-        if on_round is not None:
-            on_round(r, results)
-    return [shard_result(s) for s in specs]
+    """``rounds_by_task`` with a ``run`` that executes one task's round at once (in this process) and returns its
+    results."""
+    return rounds_by_task(specs, cfg, run, lambda results: results, lambda: None, on_round)
 
 
 def task_attempts(out_dir: Path, task: str) -> list[dict]:

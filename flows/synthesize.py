@@ -133,36 +133,46 @@ class _LogTally:
         return self.attempts, self.successes
 
 
-def _watch(tally: _LogTally, futures: list, bar: tqdm, period_s: float = 2.0) -> None:
-    """Update ``bar`` with the live demos and yield, read from the shards' attempt logs, until ``futures`` end."""
-    while True:
-        attempts, ok = tally.update()
-        bar.n = min(ok, int(bar.total))
-        bar.set_postfix(attempts=attempts, yield_=f"{ok / attempts:.2f}" if attempts else "-")
-        bar.refresh()
-        # the Dask futures, not ``f.state``: that is an API call per future per poll, and on two
-        # cores the server's share of CPU came out of the workers'
-        if all(f.wrapped_future.done() for f in futures):
-            break
-        time.sleep(period_s)
+def _show(tally: _LogTally, bar: tqdm) -> None:
+    """Update ``bar`` with the live demos and yield, read from the shards' attempt logs."""
+    attempts, ok = tally.update()
+    bar.n = min(ok, int(bar.total))
+    bar.set_postfix(attempts=attempts, yield_=f"{ok / attempts:.2f}" if attempts else "-")
+    bar.refresh()
 
 
 @flow(name="prl-synthesize")
-def _synthesize(specs: list[ShardSpec], proposal: ProposalConfig) -> tuple[list[ShardResult], list[dict[str, Any]]]:
-    from envs.synthesis import synthesize_rounds  # heavy: loads the simulator
+def _synthesize(specs: list[ShardSpec], proposal: ProposalConfig, poll_s: float = 0.2,
+                show_s: float = 2.0) -> tuple[list[ShardResult], list[dict[str, Any]]]:
+    """Each task's rounds (``envs.synthesis.rounds_by_task``) as Dask futures: a round's end is seen within
+    ``poll_s`` (the Dask futures' own state, not ``f.state``: that is an API call per future per poll, and on two
+    cores the server's share of CPU came out of the workers'), the progress bar redrawn every ``show_s``."""
+    from envs.synthesis import rounds_by_task  # heavy: loads the simulator
 
     timing: list[dict[str, Any]] = []
     tally = _LogTally(specs)
+    shown = [0.0]
     with tqdm(total=sum(s.n_success for s in specs), desc="synthesis", unit="demo") as bar:
-        def run(todo: list[ShardSpec]) -> list[ShardResult]:
-            t0 = time.perf_counter()
-            futures = [synthesize_shard.submit(spec) for spec in todo]
-            _watch(tally, futures, bar)
+        def start(todo: list[ShardSpec]) -> tuple[int, float, list]:
+            return todo[0].round, time.perf_counter(), [synthesize_shard.submit(spec) for spec in todo]
+
+        def collect(handle: tuple[int, float, list]) -> list[ShardResult] | None:
+            r, t0, futures = handle
+            if not all(f.wrapped_future.done() for f in futures):
+                return None
             results = [f.result() for f in futures]
-            timing.append({"round": todo[0].round, "wall_s": time.perf_counter() - t0, "results": results})
+            timing.append({"task": results[0].task, "round": r, "wall_s": time.perf_counter() - t0,
+                           "results": results})
             return results
 
-        shards = synthesize_rounds(specs, proposal, run)
+        def idle() -> None:
+            if time.perf_counter() - shown[0] >= show_s:
+                _show(tally, bar)
+                shown[0] = time.perf_counter()
+            time.sleep(poll_s)
+
+        shards = rounds_by_task(specs, proposal, start, collect, idle)
+        _show(tally, bar)
     return shards, timing
 
 

@@ -268,7 +268,7 @@ def test_a_round_replays_the_earlier_rounds_successes_of_every_shard(tmp_path: P
                 for j, (plan, ok) in enumerate(logs[spec.shard])]
         (spec.dir / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     r, todo = round_specs(specs, ProposalConfig(round_attempts=2, replay=0.5))
-    assert r == 1 and [s.shard for s in todo] == [0, 1]
+    assert r == 1 and [s.shard for s in todo] == [1, 0]  # shard 1 has two attempts of the round left, shard 0 one
     assert all(s.replays == (tuple(plan_a), tuple(plan_c)) and s.replay == 0.5 for s in todo)
     _, todo = round_specs(specs, ProposalConfig(round_attempts=2))
     assert all(s.replays == () and s.replay == 0.0 for s in todo)
@@ -292,3 +292,90 @@ def test_the_progress_tally_reads_only_new_complete_lines(tmp_path: Path) -> Non
     assert tally.update() == (4, 3)
     log.write_text('{"attempt": 0, "success": false}\n')  # rewritten shorter on resume: every log counted again
     assert tally.update() == (2, 1)
+
+
+def _scripted_round(spec: ShardSpec) -> None:
+    """A shard's round without physics: plans drawn from the spec's proposal (the prior when None) with the
+    attempt's own seed, a success when a0 is choice 0, lines appended as ``run_shard`` appends them."""
+    import numpy as np
+
+    from prl.plb import load_plb
+
+    spec.dir.mkdir(parents=True, exist_ok=True)
+    rows = read_attempts(spec.dir)
+    ok, j = sum(r["success"] for r in rows), len(rows)
+    probs = spec.proposal or load_plb().prior(spec.task)
+    end = min(spec.max_attempts, spec.round_end if spec.round_end is not None else spec.max_attempts)
+    with open(spec.dir / "attempts.jsonl", "a") as fh:
+        while ok < spec.n_success and j < end:
+            rng = np.random.default_rng(attempt_seeds(spec.run_seed, spec.task, spec.shard, j)[1])
+            plan = [int(rng.choice(len(p), p=np.asarray(p) / np.sum(p))) for p in probs]
+            ok += plan[0] == 0
+            fh.write(json.dumps({"attempt": j, "plan": plan, "round": spec.round, "success": plan[0] == 0}) + "\n")
+            j += 1
+
+
+def test_a_task_runs_its_rounds_while_another_tasks_round_is_still_running(tmp_path: Path) -> None:
+    """Two tasks in rounds of 2 attempts: the sweep's rounds are held back (each ends only after 6 looks), so the
+    hammer runs rounds 1, 2, ... while the sweep's round 0 is still running. Every round of each task has the
+    proposal and the shards of the lockstep run (``synthesize_rounds``) and every attempt line is the same."""
+    from envs.synthesis import rounds_by_task, shard_result, synthesize_rounds
+    from prl.proposal import ProposalConfig
+
+    cfg = ProposalConfig(round_attempts=2)
+
+    def specs(out: Path) -> list[ShardSpec]:
+        return [ShardSpec(t, k, 5, 7, out) for t in ("hammer", "sweep") for k in range(2)]
+
+    def lockstep_run(todo: list[ShardSpec]) -> list:
+        lockstep.append((todo[0].task, todo[0].round, sorted(s.shard for s in todo), todo[0].proposal))
+        for s in todo:
+            _scripted_round(s)
+        return [shard_result(s) for s in todo]
+
+    lockstep: list[tuple] = []
+    synthesize_rounds(specs(tmp_path / "lockstep"), cfg, lockstep_run)
+
+    started: list[tuple] = []
+    held = {"sweep": 6, "hammer": 0}
+
+    def start(todo: list[ShardSpec]) -> dict:
+        started.append((todo[0].task, todo[0].round, sorted(s.shard for s in todo), todo[0].proposal))
+        return {"todo": todo, "looks": held[todo[0].task]}
+
+    def collect(handle: dict) -> list | None:
+        if handle["looks"] > 0:
+            handle["looks"] -= 1
+            return None
+        for s in handle["todo"]:
+            _scripted_round(s)
+        return [shard_result(s) for s in handle["todo"]]
+
+    idles: list[int] = []
+    results = rounds_by_task(specs(tmp_path / "by_task"), cfg, start, collect, lambda: idles.append(1))
+    assert sum(r.successes for r in results) == 20
+    order = [(task, r) for task, r, _, _ in started]
+    assert order.index(("hammer", 2)) < order.index(("sweep", 1))  # the hammer did not wait for the sweep
+    for task in ("hammer", "sweep"):
+        assert [e for e in started if e[0] == task] == [e for e in lockstep if e[0] == task]
+    assert max(r for _, r in order) >= 2 and idles  # several rounds, and looks that found nothing ended
+    for path in (tmp_path / "lockstep").rglob("attempts.jsonl"):
+        assert path.read_bytes() == (tmp_path / "by_task" / path.relative_to(tmp_path / "lockstep")).read_bytes()
+
+
+def test_shards_expected_to_run_longest_are_started_first(tmp_path: Path) -> None:
+    """``expected_attempts`` by hand: a shard missing 3 demos at a yield of 0.5 is expected to make 6 attempts,
+    capped by the 4 left in its round; one missing 1 demo, 2 attempts; one with its demos kept, 0."""
+    from envs.synthesis import expected_attempts, longest_first
+
+    spec = ShardSpec("hammer", 0, 5, 0, tmp_path, round_end=8)
+    assert expected_attempts(spec, 4, 2, 0.5) == 4.0  # min(8 - 4, 3 / 0.5)
+    assert expected_attempts(spec, 4, 4, 0.5) == 2.0
+    assert expected_attempts(spec, 4, 5, 0.5) == 0.0
+    assert expected_attempts(ShardSpec("hammer", 0, 5, 0, tmp_path), 0, 0, 0.0) == 10_000  # no yield yet: capped
+    specs = [ShardSpec("hammer", k, 5, 0, tmp_path, round_end=8) for k in range(3)]
+    # the task's yield so far: 7 successes of 14 attempts = 0.5
+    logs = {("hammer", 0): [{"success": True}] * 4 + [{"success": False}] * 4,  # 1 missing: min(0 + ..., 2) = 2
+            ("hammer", 1): [{"success": True}] * 2 + [{"success": False}] * 2,  # 3 missing: min(4, 6) = 4
+            ("hammer", 2): [{"success": True}, {"success": False}]}  # 4 missing: min(6, 8) = 6
+    assert [s.shard for s in longest_first(specs, logs)] == [2, 1, 0]
