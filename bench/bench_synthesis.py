@@ -11,7 +11,9 @@ Run it long enough (minutes per run) that the workers' start-up (about 10 s of i
 and the last, unevenly ending shard do not dominate: ``--demos 120 --shards 12``.
 With several ``--tasks`` (``hammer,sweep``) each task's rounds run on their own (``envs.synthesis.rounds_by_task``),
 as in the pipeline's four-task runs: a task's next round fills the workers while another task's round ends.
-``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
+The machine's speed drifts on a shared host (the same 809 hammer attempts took one worker 244 s, then 323 s and 350 s
+two days later): ``--repeats 2`` runs 1, 2, 2, 1 workers and takes the ratio of the sums.
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--repeats 1|2] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
 """
 
 from __future__ import annotations
@@ -58,19 +60,27 @@ def main() -> None:
     parser.add_argument("--proposal", default="adaptive", choices=PROPOSALS,
                         help="the pipeline's default, adaptive: rounds with a barrier between them")
     parser.add_argument("--round-attempts", type=int, default=ProposalConfig.round_attempts)
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="run 1, 2, 2, 1 workers (2 repeats: a drift of the machine's speed cancels to first order)")
     args = parser.parse_args()
+    if args.repeats not in (1, 2):
+        parser.error(f"--repeats must be 1 or 2, got {args.repeats}")
     proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
-    rows = {}
+    runs: dict[int, list[tuple[float, int, int]]] = {1: [], 2: []}
     with tempfile.TemporaryDirectory() as tmp:
-        for workers in (1, 2):
-            rows[workers] = _run(workers, tasks, args.demos, args.shards, args.seed, Path(tmp) / f"w{workers}",
-                                 proposal)
+        for i, workers in enumerate((1, 2, 2, 1)[: 2 * args.repeats]):
+            runs[workers].append(_run(workers, tasks, args.demos, args.shards, args.seed, Path(tmp) / f"run{i}",
+                                      proposal))
+        rows = {w: (sum(r[0] for r in rs), sum(r[1] for r in rs), sum(r[2] for r in rs)) for w, rs in runs.items()}
         bare = None if args.no_bare else _run_bare(tasks, args.demos, args.shards, args.seed, Path(tmp) / "bare",
                                                    proposal)
     print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
           f"proposal ({args.round_attempts} attempts per shard and round)")
-    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}")
+    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}"
+          + ("  (sums of the two runs; each run's wall s: " + ", ".join(
+              f"{w} worker(s) {' and '.join(f'{r[0]:.1f}' for r in rs)}" for w, rs in runs.items()) + ")"
+             if args.repeats == 2 else ""))
     for workers, (wall, demos, attempts) in rows.items():
         print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")
     if bare is not None:
@@ -80,7 +90,7 @@ def main() -> None:
         for workers, (wall, _, attempts) in rows.items():
             print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
     speedup = rows[1][0] / rows[2][0]
-    print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {rows[1][2] == rows[2][2]})")
+    print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {len({r[2] for rs in runs.values() for r in rs}) == 1})")
     per_min = 60 * rows[2][1] / rows[2][0]
     print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers: "
           f"{2000 * len(tasks) / per_min / 60:.1f} h")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import dask
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect_dask import DaskTaskRunner
@@ -70,10 +71,16 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     config each nanny hands its worker; this process's own Dask config is left as it is). It keeps a tree of the
     running task's stacks per second for the last 1,000 seconds: Python objects made after ``fast_resets()`` froze
     the heap, which every scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
-    of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``).
+    of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``). The local cluster's
+    scheduler and nannies run in this process, and each started the same profiler on this process's event loop
+    (``distributed.core.Server``): a thread sampling every thread's stack every 10 ms, about 4% of a core taken from
+    the workers on two cores, for a profile no one can see (the cluster has no dashboard). So a local cluster
+    switches it off for the rest of this process (``dask.config``, set here: the cluster starts lazily, at the
+    flow's first submit).
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
+    dask.config.set({"distributed.worker.profile.enabled": False})
     # no pages of scheduler and worker start-up chatter: the workers read dask's logging level from the
     # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
     logging.getLogger("distributed").setLevel(logging.WARNING)

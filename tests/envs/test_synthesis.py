@@ -156,7 +156,9 @@ def _worker_profiles() -> bool:
 def test_local_dask_workers_report_to_this_process_api() -> None:
     """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own; and
     they run without distributed's sampling profiler, whose stack trees every scene rebuild's gc.collect() would
-    walk (``make_task_runner``)."""
+    walk, nor does this process, where the cluster's scheduler and nannies run (``make_task_runner``)."""
+    import threading
+
     import httpx
     from prefect import flow, task
     from prefect.settings import PREFECT_API_URL
@@ -170,11 +172,13 @@ def test_local_dask_workers_report_to_this_process_api() -> None:
     profiles_task = task(_worker_profiles, name="worker-profiles")
 
     @flow(task_runner=make_task_runner(2, None))
-    def probe() -> tuple[list[str], list[bool]]:
+    def probe() -> tuple[list[str], list[bool], list[str]]:
         return ([f.result() for f in [worker_task.submit(), worker_task.submit()]],
-                [f.result() for f in [profiles_task.submit(), profiles_task.submit()]])
+                [f.result() for f in [profiles_task.submit(), profiles_task.submit()]],
+                [t.name for t in threading.enumerate()])
 
-    urls, profiles = probe()
+    urls, profiles, threads = probe()
+    assert "Profile" not in threads  # distributed.profile.watch's thread, one per profiled event loop
     here = _worker_api_url()
     assert urls == [here, here]
     assert profiles == [False, False]
