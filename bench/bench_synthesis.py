@@ -27,14 +27,16 @@ from prl.proposal import PROPOSALS, ProposalConfig
 
 
 def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out: Path,
-         proposal: ProposalConfig) -> tuple[float, int, int]:
-    from flows.synthesize import shard_specs, synthesize  # heavy: loads the simulator
+         proposal: ProposalConfig) -> tuple[float, int, int, float]:
+    """Wall seconds, demos, attempts, and the workers' busy seconds (the shard-rounds' calls added up)."""
+    from flows.synthesize import shard_specs, synthesize_timed  # heavy: loads the simulator
 
     specs = shard_specs(tasks, demos, seed, shards, out)
     t0 = time.perf_counter()
-    results = synthesize(specs, workers=workers, proposal=proposal)
+    results, timing = synthesize_timed(specs, workers, None, proposal)
     wall = time.perf_counter() - t0
-    return wall, sum(r.successes for r in results), sum(r.attempts for r in results)
+    busy = sum(res.seconds for t in timing for res in t["results"])
+    return wall, sum(r.successes for r in results), sum(r.attempts for r in results), busy
 
 
 def _run_bare(tasks: list[str], demos: int, shards: int, seed: int, out: Path,
@@ -67,27 +69,31 @@ def main() -> None:
         parser.error(f"--repeats must be 1 or 2, got {args.repeats}")
     proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
-    runs: dict[int, list[tuple[float, int, int]]] = {1: [], 2: []}
+    runs: dict[int, list[tuple[float, int, int, float]]] = {1: [], 2: []}
     with tempfile.TemporaryDirectory() as tmp:
         for i, workers in enumerate((1, 2, 2, 1)[: 2 * args.repeats]):
             runs[workers].append(_run(workers, tasks, args.demos, args.shards, args.seed, Path(tmp) / f"run{i}",
                                       proposal))
-        rows = {w: (sum(r[0] for r in rs), sum(r[1] for r in rs), sum(r[2] for r in rs)) for w, rs in runs.items()}
+        rows = {w: tuple(sum(r[i] for r in rs) for i in range(4)) for w, rs in runs.items()}
         bare = None if args.no_bare else _run_bare(tasks, args.demos, args.shards, args.seed, Path(tmp) / "bare",
                                                    proposal)
     print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
           f"proposal ({args.round_attempts} attempts per shard and round)")
-    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13}"
+    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13} "
+          f"{'busy':>6} {'worker s/attempt':>17}"
           + ("  (sums of the two runs; each run's wall s: " + ", ".join(
               f"{w} worker(s) {' and '.join(f'{r[0]:.1f}' for r in rs)}" for w, rs in runs.items()) + ")"
              if args.repeats == 2 else ""))
-    for workers, (wall, demos, attempts) in rows.items():
-        print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f}")
+    for workers, (wall, demos, attempts, busy) in rows.items():
+        print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f} "
+              f"{busy / (workers * wall):>6.1%} {busy / attempts:>17.3f}")
+    print("busy: the workers' share of the wall time spent in shard-rounds (the rest: start-up, the end of each round,\n"
+          "the flow between rounds); worker s/attempt: their seconds per attempt (up with 2 workers: the cores shared)")
     if bare is not None:
         print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
               f"{60 * bare[2] / bare[0]:>13.1f}")
         bare_per_attempt = bare[0] / bare[2]
-        for workers, (wall, _, attempts) in rows.items():
+        for workers, (wall, _, attempts, _) in rows.items():
             print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
     speedup = rows[1][0] / rows[2][0]
     print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {len({r[2] for rs in runs.values() for r in rs}) == 1})")

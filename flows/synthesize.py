@@ -185,13 +185,15 @@ def _synthesize(specs: list[ShardSpec], proposal: ProposalConfig, poll_s: float 
 
 def synthesize(specs: list[ShardSpec], workers: int = 2, dask_address: str | None = None,
                proposal: ProposalConfig | None = None) -> list[ShardResult]:
-    """Run ``specs`` round by round (``envs.synthesis.synthesize_rounds``) as a Prefect (sub)flow on a Dask task
+    """Run ``specs`` round by round (``envs.synthesis.rounds_by_task``) as a Prefect (sub)flow on a Dask task
     runner; return the shard results in order."""
-    return _run(specs, workers, dask_address, proposal or ProposalConfig(kind="prior"))[0]
+    return synthesize_timed(specs, workers, dask_address, proposal or ProposalConfig(kind="prior"))[0]
 
 
-def _run(specs: list[ShardSpec], workers: int, dask_address: str | None,
-         proposal: ProposalConfig) -> tuple[list[ShardResult], list[dict[str, Any]]]:
+def synthesize_timed(specs: list[ShardSpec], workers: int, dask_address: str | None,
+                     proposal: ProposalConfig) -> tuple[list[ShardResult], list[dict[str, Any]]]:
+    """``synthesize``, and each task's round as it ran: ``{"task", "round", "wall_s", "results"}`` (the shard-rounds'
+    results, each with the seconds its call took on its worker)."""
     return _synthesize.with_options(task_runner=make_task_runner(workers, dask_address))(specs, proposal)
 
 
@@ -246,7 +248,7 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
         specs = shard_specs(tasks, cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir, n_frames=cfg.episode_frames)
         already = sum(r["success"] for spec in specs for r in read_attempts(spec.dir))  # resumed runs
         t0 = time.perf_counter()
-        shards, timing = _run(specs, cfg.workers, cfg.dask_address, proposal)
+        shards, timing = synthesize_timed(specs, cfg.workers, cfg.dask_address, proposal)
         minutes = (time.perf_counter() - t0) / 60
         rounds = round_rows(demo_dir, tasks, timing)
         log_rounds(rounds, proposal)
