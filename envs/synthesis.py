@@ -10,7 +10,8 @@ prior, its defensive share, and with replays of earlier rounds' successful plans
 between rounds of ``round_attempts`` attempts per shard. ``rounds_by_task`` runs the rounds:
 every unfinished shard runs its attempts of round r with the proposal computed from the attempt logs of
 rounds < r of all the task's shards, and the task's round r + 1 starts when its round r has ended in all
-its shards (other tasks' rounds need not have ended). A prior run is one round without limit (the plans and files of a run before rounds existed, plus the two log-probabilities).
+its shards (other tasks' rounds need not have ended). A prior run is one round without limit (the plans
+and files of a run before rounds existed, plus the two log-probabilities).
 
 On disk, per shard ``<out>/<task>/shard<k>/``:
 

@@ -68,8 +68,8 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     same shards run by bare processes, 0.84 with it (2 workers, 30 hammer demos, steady part, 2026-11-30).
 
     The local workers run without distributed's sampling profiler (``distributed.worker.profile.enabled`` in the
-    config each nanny hands its worker; this process's own Dask config is left as it is). It keeps a tree of the
-    running task's stacks per second for the last 1,000 seconds: Python objects made after ``fast_resets()`` froze
+    config each nanny hands its worker). It keeps a tree of the running task's stacks per second for the last
+    1,000 seconds: Python objects made after ``fast_resets()`` froze
     the heap, which every scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
     of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``). The local cluster's
     scheduler and nannies run in this process, and each started the same profiler on this process's event loop
