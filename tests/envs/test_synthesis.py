@@ -379,7 +379,7 @@ def test_shards_expected_to_run_longest_are_started_first(tmp_path: Path) -> Non
     assert expected_attempts(ShardSpec("hammer", 0, 5, 0, tmp_path), 0, 0, 0.0) == 10_000  # no yield yet: capped
     specs = [ShardSpec("hammer", k, 5, 0, tmp_path, round_end=8) for k in range(3)]
     # the task's yield so far: 7 successes of 14 attempts = 0.5
-    logs = {("hammer", 0): [{"success": True}] * 4 + [{"success": False}] * 4,  # 1 missing: min(0 + ..., 2) = 2
+    logs = {("hammer", 0): [{"success": True}] * 4 + [{"success": False}] * 4,  # 1 missing, no attempt left: 0
             ("hammer", 1): [{"success": True}] * 2 + [{"success": False}] * 2,  # 3 missing: min(4, 6) = 4
             ("hammer", 2): [{"success": True}, {"success": False}]}  # 4 missing: min(6, 8) = 6
     assert [s.shard for s in longest_first(specs, logs)] == [2, 1, 0]
