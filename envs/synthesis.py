@@ -343,7 +343,7 @@ def expected_attempts(spec: ShardSpec, attempts: int, successes: int, yield_: fl
     """Attempts a shard with these counts is expected to make in ``spec``'s call: its missing demos over the
     task's yield so far (1 when unknown), capped by the attempts left in the round and overall."""
     left = min(spec.max_attempts, spec.round_end if spec.round_end is not None else spec.max_attempts) - attempts
-    need = max(spec.n_success - successes, 0) / max(yield_, 1.0 / max(spec.max_attempts, 1))
+    need = max(spec.n_success - successes, 0) / max(yield_, 1.0 / spec.max_attempts)
     return float(max(min(left, need), 0))
 
 

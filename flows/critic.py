@@ -167,9 +167,9 @@ def main(argv: list[str] | None = None) -> int:
         results[kind] = run_policy(args.task, policy, eval_seeds, desc=f"{args.task} {kind} plans")
         print(table_row(kind, results[kind], families), flush=True)
     summary = {k: [int(o.success) for o in v] for k, v in results.items()}
-    (out_dir / f"critic-eval-{args.task}-seed{args.seed}.json").write_text(json.dumps(
-        {"task": args.task, "top_k": args.top_k, "seeds": eval_seeds, "families": families, "success": summary,
-         "held_out": best}, indent=1))
+    with atomic_file(out_dir / f"critic-eval-{args.task}-seed{args.seed}.json", "w") as fh:
+        json.dump({"task": args.task, "top_k": args.top_k, "seeds": eval_seeds, "families": families,
+                   "success": summary, "held_out": best}, fh, indent=1)
     return 0
 
 
