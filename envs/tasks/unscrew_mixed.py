@@ -62,12 +62,13 @@ wide flask (body radius 5-6 cm) whose shoulder lies 3-6 mm under the cap. Finger
 cap (a medium wrap, flat extended fingers) land on the shoulder; the precision disk's fingertips grip the cap's
 side from above."""
 WIDE_LID = CapFamily(
-    name="wide_lid", cap_radius=(0.030, 0.040), breakaway_torque=(3.6, 4.4), body_radius=BODY_RADIUS_RANGE,
-    body_height=BODY_HEIGHT_RANGE,
+    name="wide_lid", cap_radius=(0.036, 0.042), breakaway_torque=(3.6, 4.0), body_radius=BODY_RADIUS_RANGE,
+    body_height=BODY_HEIGHT_RANGE, cap_friction=(1.2, 1.5),
 )
-"""Family 1: a wide, tight lid (6-8 cm across, 3.6-4.4 N m to break away: a stuck jar lid) on the base task's
-bottle. The precision disk's fingertips slip on it; a medium wrap (the palm on the lid, the fingers round its rim)
-holds that torque."""
+"""Family 1: a wide, tight, knurled lid (7.2-8.4 cm across, 3.6-4.0 N m to break away: a stuck jar lid; side
+friction 1.2-1.5) on the base task's bottle. The precision disk's fingertips slip on it; a medium wrap (the palm on
+the lid, the fingers round its rim) holds that torque, untilted or tilted (ranges of 2026-12-04: see
+``docs/tasks.md``)."""
 
 
 @register_env("PRL-UnscrewMixed-v1", max_episode_steps=150)
@@ -83,10 +84,11 @@ class PRLUnscrewMixedEnv(MixedFamilies, PRLUnscrewEnv):
       may still turn the cap by its rim, with no finger on its side: not gripped); the precision disk's
       fingertips grip the cap's side from above. Plan: ``(0, 3, 2, 3, 5, 1)``, the base task's expert
       (precision disk, anchor 2, arm rotation about the palm).
-    - family 1, ``wide_lid``: a wide tight lid, radius 3.0-4.0 cm, half-height 1.0-1.3 cm, breakaway torque
-      3.6-4.4 N m, on the base task's bottle (body radius 2.2-2.8 cm, height 3.5-4.5 cm). The precision disk's
-      fingertips slip on the rim under that torque; a medium wrap with the palm tilted -20 deg about X holds it.
-      Plan: ``(4, 3, 4, 0, 5, 1)`` (tilt -20 deg, anchor 4, medium wrap, arm rotation about the palm).
+    - family 1, ``wide_lid``: a wide tight lid, radius 3.6-4.2 cm, half-height 1.0-1.3 cm, side friction 1.2-1.5,
+      breakaway torque 3.6-4.0 N m, on the base task's bottle (body radius 2.2-2.8 cm, height 3.5-4.5 cm). The
+      precision disk's fingertips slip on the rim under that torque; a medium wrap holds it, the palm untilted
+      (``(0, 3, 2, 0, 5, 1)``) or tilted. Plan: ``(4, 3, 4, 0, 5, 1)`` (tilt -20 deg, anchor 4, medium wrap, arm
+      rotation about the palm).
 
     Measured (2026-12-02, 30 scenes of each family, seeds 20000-20062): each family's plan 30/30 on its own
     family, 0/30 on the other's; uniform plans 3/60; on the pipeline's trial seeds 0-64 (25 of each family)
@@ -100,9 +102,9 @@ class PRLUnscrewMixedEnv(MixedFamilies, PRLUnscrewEnv):
     **Randomizations:**
     - the family: 0 or 1 with probability 1/2 each, the first value drawn from the scene's seeded generator
     - then, from the family's ranges (scaled by ``randomization`` as the base task's): cap radius, cap
-      half-height, cap side friction in [0.9, 1.4], breakaway torque, body radius, and the body's height
-      (family 1) or the shoulder's gap under the cap's seat (family 0: the body's height is then 9 cm - the cap's
-      half-height - the gap)
+      half-height, cap side friction (family 0 in [0.9, 1.4], family 1 in [1.2, 1.5]), breakaway torque, body
+      radius, and the body's height (family 1) or the shoulder's gap under the cap's seat (family 0: the body's
+      height is then 9 cm - the cap's half-height - the gap)
     - bottle position +-2 cm in x, y (as the base task)
 
     **Success Conditions:**
