@@ -90,10 +90,10 @@ class PRLUnscrewMixedEnv(MixedFamilies, PRLUnscrewEnv):
       (``(0, 3, 2, 0, 5, 1)``) or tilted. Plan: ``(4, 3, 4, 0, 5, 1)`` (tilt -20 deg, anchor 4, medium wrap, arm
       rotation about the palm).
 
-    Measured (2026-12-02, 30 scenes of each family, seeds 20000-20062): each family's plan 30/30 on its own
-    family, 0/30 on the other's; uniform plans 3/60; on the pipeline's trial seeds 0-64 (25 of each family)
-    25/25 and 24/25, crossed 0/25 and 0/25; ``python -m envs.trials --task unscrew_mixed --scenes 50``: uniform
-    2/50, prior 1/50.
+    Measured (2026-12-04, the wide lid's ranges of that day; 30 scenes of each family, seeds 20000 on): each
+    family's plan 30/30 on its own family, 0/30 on the other's, the untilted wrap ``(0, 3, 2, 0, 5, 1)`` 30/30 on
+    the wide lids and 0/30 on the flasks; ``python -m envs.families --task unscrew_mixed --scenes 50`` (20 flasks,
+    30 wide lids): oracle 50/50, each family's plan on its own family only; uniform plans 6/200 (``--uniform``).
 
     The family is ``scene_params["family"]``; x sees it through the sizes (the cap's radius in the tool's point
     cloud, the body's radius and height in the object's, rebuilt by ``prl.shapes.scene_meshes`` with the base
