@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prl.config import known_tasks
+from prl.config import ConfigError, check_task_names
 from prl.proposal import PROPOSALS, ProposalConfig
 
 
@@ -70,9 +70,10 @@ def main() -> None:
         parser.error(f"--repeats must be 1 or 2, got {args.repeats}")
     proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
-    unknown = [t for t in tasks if t not in known_tasks()]
-    if unknown or not tasks:
-        parser.error(f"unknown task(s) {unknown or args.tasks!r} in --tasks; known: {', '.join(known_tasks())}")
+    try:
+        check_task_names(tasks)
+    except ConfigError as err:
+        parser.error(str(err))
     runs: dict[int, list[tuple[float, int, int, float]]] = {1: [], 2: []}
     with tempfile.TemporaryDirectory() as tmp:
         for i, workers in enumerate((1, 2, 2, 1)[: 2 * args.repeats]):

@@ -113,6 +113,11 @@ class ShardSpec:
         return successes >= self.n_success or attempts >= self.max_attempts
 
     @property
+    def call_end(self) -> int:
+        """The attempt index this call stops before: the round's end, capped by ``max_attempts``."""
+        return self.max_attempts if self.round_end is None else min(self.max_attempts, self.round_end)
+
+    @property
     def dir(self) -> Path:
         return Path(self.out_dir) / self.task / f"shard{self.shard:03d}"
 
@@ -232,7 +237,7 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     prior = plb.prior(spec.task)
     probs = as_probs(spec.proposal) if spec.proposal is not None else prior
     replays = np.asarray(spec.replays, dtype=np.int64).reshape(-1, len(prior))  # once, not per attempt
-    end = spec.max_attempts if spec.round_end is None else min(spec.max_attempts, spec.round_end)
+    end = spec.call_end
 
     measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
     env = executor = None
@@ -342,7 +347,7 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
 def expected_attempts(spec: ShardSpec, attempts: int, successes: int, yield_: float) -> float:
     """Attempts a shard with these counts is expected to make in ``spec``'s call: its missing demos over the
     task's yield so far (1 when unknown), capped by the attempts left in the round and overall."""
-    left = min(spec.max_attempts, spec.round_end if spec.round_end is not None else spec.max_attempts) - attempts
+    left = spec.call_end - attempts
     need = max(spec.n_success - successes, 0) / max(yield_, 1.0 / spec.max_attempts)
     return float(max(min(left, need), 0))
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from flows.evaluate_rn import PRIOR_SEED_OFFSET, baseline_outcomes, find_pointnet, rn_outcomes
-from prl.config import known_tasks
+from prl.config import check_task_names, known_tasks
 from prl.constants import EPISODE_FRAMES, REPO_ROOT
 from prl.ln_reference import (
     plan_result,
@@ -92,10 +92,7 @@ def run_reference(record: dict[str, Any], seeds: list[int], rn_path: Path | None
 
 def check_arguments(tasks: list[str], eval_seed: int, eval_scenes: int, rn_path: Path | None) -> None:
     """ValueError naming an unknown task or a bad seed or count; FileNotFoundError naming a missing RN file."""
-    known = known_tasks()
-    unknown = [t for t in tasks if t not in known]
-    if unknown or not tasks:
-        raise ValueError(f"unknown task(s) {unknown or tasks} in --tasks; known: {', '.join(known)}")
+    check_task_names(tasks)
     if eval_seed < 0:
         raise ValueError(f"--eval-seed must be >= 0, got {eval_seed}")
     if eval_scenes < 1:

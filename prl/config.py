@@ -37,6 +37,14 @@ def known_tasks(root: Path | None = None) -> tuple[str, ...]:
     return TASKS + task_variants(root)
 
 
+def check_task_names(tasks: list[str]) -> None:
+    """ConfigError naming the unknown ones of ``tasks`` (a ``--tasks`` list), or an empty list."""
+    known = known_tasks()
+    unknown = [t for t in tasks if t not in known]
+    if unknown or not tasks:
+        raise ConfigError(f"unknown task(s) {unknown or tasks} in --tasks; known: {', '.join(known)}")
+
+
 PAPER_LN_DEMO_STEPS = 1280
 """The demonstration steps of the paper's LN (its ablation's reference point)."""
 
