@@ -62,13 +62,13 @@ wide flask (body radius 5-6 cm) whose shoulder lies 3-6 mm under the cap. Finger
 cap (a medium wrap, flat extended fingers) land on the shoulder; the precision disk's fingertips grip the cap's
 side from above."""
 WIDE_LID = CapFamily(
-    name="wide_lid", cap_radius=(0.036, 0.042), breakaway_torque=(3.6, 4.0), body_radius=BODY_RADIUS_RANGE,
-    body_height=BODY_HEIGHT_RANGE, cap_friction=(1.2, 1.5),
+    name="wide_lid", cap_radius=(0.036, 0.042), breakaway_torque=(3.8, 4.2), body_radius=BODY_RADIUS_RANGE,
+    body_height=BODY_HEIGHT_RANGE, cap_friction=(1.2, 1.5), cap_half_height=(0.009, 0.011),
 )
-"""Family 1: a wide, tight, knurled lid (7.2-8.4 cm across, 3.6-4.0 N m to break away: a stuck jar lid; side
-friction 1.2-1.5) on the base task's bottle. The precision disk's fingertips slip on it; a medium wrap (the palm on
-the lid, the fingers round its rim) holds that torque, untilted or tilted (ranges of 2026-12-04: see
-``docs/tasks.md``)."""
+"""Family 1: a wide, low, tight, knurled lid (7.2-8.4 cm across, 1.8-2.2 cm tall, 3.8-4.2 N m to break away: a
+stuck jar lid; side friction 1.2-1.5) on the base task's bottle. The precision disk's fingertips slip on it, tilted
+or not; a medium wrap (the palm on the lid, the fingers round its rim) holds that torque, untilted or tilted
+(ranges of 2026-12-05: see ``docs/tasks.md``)."""
 
 
 @register_env("PRL-UnscrewMixed-v1", max_episode_steps=150)
@@ -84,16 +84,16 @@ class PRLUnscrewMixedEnv(MixedFamilies, PRLUnscrewEnv):
       may still turn the cap by its rim, with no finger on its side: not gripped); the precision disk's
       fingertips grip the cap's side from above. Plan: ``(0, 3, 2, 3, 5, 1)``, the base task's expert
       (precision disk, anchor 2, arm rotation about the palm).
-    - family 1, ``wide_lid``: a wide tight lid, radius 3.6-4.2 cm, half-height 1.0-1.3 cm, side friction 1.2-1.5,
-      breakaway torque 3.6-4.0 N m, on the base task's bottle (body radius 2.2-2.8 cm, height 3.5-4.5 cm). The
+    - family 1, ``wide_lid``: a wide tight lid, radius 3.6-4.2 cm, half-height 0.9-1.1 cm, side friction 1.2-1.5,
+      breakaway torque 3.8-4.2 N m, on the base task's bottle (body radius 2.2-2.8 cm, height 3.5-4.5 cm). The
       precision disk's fingertips slip on the rim under that torque; a medium wrap holds it, the palm untilted
       (``(0, 3, 2, 0, 5, 1)``) or tilted. Plan: ``(4, 3, 4, 0, 5, 1)`` (tilt -20 deg, anchor 4, medium wrap, arm
       rotation about the palm).
 
-    Measured (2026-12-04, the wide lid's ranges of that day; 30 scenes of each family, seeds 20000 on): each
-    family's plan 30/30 on its own family, 0/30 on the other's, the untilted wrap ``(0, 3, 2, 0, 5, 1)`` 30/30 on
-    the wide lids and 0/30 on the flasks; ``python -m envs.families --task unscrew_mixed --scenes 50`` (20 flasks,
-    30 wide lids): oracle 50/50, each family's plan on its own family only; uniform plans 6/200 (``--uniform``).
+    Measured: each family's plan on 30 scenes of each family, the trial scenes' oracle and fixed plans
+    (``python -m envs.families --task unscrew_mixed --scenes 50``), uniform plans (``--uniform``), and how these
+    ranges were chosen: ``docs/tasks.md``, "Unscrewing, mixed" (numbers there, so that a new measurement does not
+    change this module and with it the task's code version).
 
     The family is ``scene_params["family"]``; x sees it through the sizes (the cap's radius in the tool's point
     cloud, the body's radius and height in the object's, rebuilt by ``prl.shapes.scene_meshes`` with the base
