@@ -18,6 +18,12 @@ prior on the changed family's scenes (plan i on scene i mod --scenes), and from 
 perfectly (the successes' per-dimension shares; the library is the distinct successful plans); those plans then run
 on the probe's scenes. A family whose decoded plans fail there cannot be solved by the paper's decoding reading the
 family alone, however many demos are made (docs/tasks.md, hammer_mixed).
+
+Each plan's line also gives its mean reward (the task's measure, what the LN's A2C is paid) on the probe's scenes,
+and the probe names the *reward traps*: plans that earn a higher mean reward than the most successful plan tried
+while succeeding less often. A2C paid that reward drifts towards them after its pre-training (docs/tasks.md,
+unscrew_mixed: the flasks' spun caps), so a family without traps among the plans an RL agent finds is the safer
+design.
 """
 
 from __future__ import annotations
@@ -35,6 +41,37 @@ from prl.plb import load_plb, parse_plan, validate_plan
 from prl.stats import format_rate
 
 Range = tuple[float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanRecord:
+    """One plan's result on a probe's scenes."""
+
+    plan: tuple[int, ...]
+    successes: int
+    scenes: int
+    mean_reward: float
+    """The task's measure (the LN's reward) averaged over the scenes, successes and failures alike."""
+
+    @property
+    def rate(self) -> float:
+        return self.successes / self.scenes if self.scenes else 0.0
+
+
+def plan_record(plan: Sequence[int], outcomes: Sequence[Any]) -> PlanRecord:
+    """The record of ``plan`` from its outcomes (``envs.trials.TrialOutcome``: ``success``, ``measure``)."""
+    rewards = [float(o.measure) for o in outcomes]
+    return PlanRecord(tuple(int(v) for v in plan), sum(bool(o.success) for o in outcomes), len(outcomes),
+                      float(np.mean(rewards)) if rewards else 0.0)
+
+
+def reward_traps(records: Sequence[PlanRecord]) -> list[PlanRecord]:
+    """The plans that an agent paid by the mean reward would prefer to the most successful plan (the highest rate,
+    ties to the higher reward): a higher mean reward and a lower success rate. In the order given."""
+    if not records:
+        return []
+    best = max(records, key=lambda r: (r.rate, r.mean_reward))
+    return [r for r in records if r.rate < best.rate and r.mean_reward > best.mean_reward]
 
 
 def parse_setting(text: str) -> tuple[str, Range]:
@@ -160,10 +197,18 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.task} family {args.family} ({what}), scene seeds {seeds[0]}-{seeds[-1]}:")
     if args.prior:
         print(f"  prior-sampled plans: {format_rate(won, args.prior)} succeeded")
-    for plan, outcomes in out.items():
-        names = [k for k, v in decoded.items() if v == plan]
+    records = [plan_record(plan, outcomes) for plan, outcomes in out.items()]
+    for rec in records:
+        names = [k for k, v in decoded.items() if v == rec.plan]
         tag = f"  ({', '.join(names)} of the prior's successes)" if names else ""
-        print(f"  {list(plan)}  {format_rate(sum(bool(o.success) for o in outcomes), len(outcomes))}{tag}")
+        print(f"  {list(rec.plan)}  {format_rate(rec.successes, rec.scenes)}  mean reward {rec.mean_reward:.3g}{tag}")
+    traps = reward_traps(records)
+    if traps:
+        best = max(records, key=lambda r: (r.rate, r.mean_reward))
+        print(f"  reward traps (a higher mean reward than {list(best.plan)}'s {best.mean_reward:.3g} with fewer "
+              f"successes; A2C paid this reward drifts towards them):")
+        for rec in traps:
+            print(f"    {list(rec.plan)}  mean reward {rec.mean_reward:.3g}, {rec.successes}/{rec.scenes}")
     return 0
 
 

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import pytest
 
-from envs.family_probe import changed_family, family_ranges, main, parse_setting
+from envs.family_probe import (
+    PlanRecord,
+    changed_family,
+    family_ranges,
+    main,
+    parse_setting,
+    plan_record,
+    reward_traps,
+)
 from envs.tasks.unscrew_mixed import FLASK, WIDE_LID, PRLUnscrewMixedEnv
 
 
@@ -92,3 +100,29 @@ def test_prior_decodings_decode_the_successes_only(monkeypatch: pytest.MonkeyPat
                         lambda task, plans, seeds, **_: [SimpleNamespace(success=False)] * len(plans))
     with pytest.raises(ValueError, match="none of the 5 prior-sampled plans succeeded on family 1"):
         prior_decodings("unscrew_mixed", 1, {}, [7], 5, rng_seed=3)
+
+
+def test_plan_record_averages_the_reward_over_successes_and_failures() -> None:
+    from types import SimpleNamespace
+
+    outs = [SimpleNamespace(success=True, measure=70.0), SimpleNamespace(success=False, measure=0.5),
+            SimpleNamespace(success=True, measure=60.0), SimpleNamespace(success=False, measure=-2.5)]
+    rec = plan_record([0, 3, 2, 3, 5, 1], outs)
+    assert rec == PlanRecord((0, 3, 2, 3, 5, 1), 2, 4, 32.0)  # (70 + 0.5 + 60 - 2.5) / 4
+    assert rec.rate == 0.5
+    assert plan_record([0, 3, 2, 3, 5, 1], []).mean_reward == 0.0
+
+
+def test_reward_traps_are_the_better_paid_less_successful_plans() -> None:
+    """The unscrew_mixed flasks (docs/tasks.md): the anchor-2 disk opens 20/20 turning the cap 65 deg; the anchor-1
+    disk 18/20 at 114 deg on average, a push that spins the cap 0/20 at 158 deg: both are traps; a plan paid less
+    (a wrap, 0/20 at 3 deg) and one as successful but paid more are not."""
+    disk2 = PlanRecord((0, 3, 2, 3, 5, 1), 20, 20, 65.0)
+    disk1 = PlanRecord((0, 3, 1, 3, 5, 1), 18, 20, 114.0)
+    push = PlanRecord((4, 3, 1, 3, 2, 3), 0, 20, 158.0)
+    wrap = PlanRecord((0, 3, 2, 0, 5, 1), 0, 20, 3.0)
+    assert reward_traps([wrap, disk1, disk2, push]) == [disk1, push]
+    assert reward_traps([disk2, wrap]) == []
+    twin = PlanRecord((1, 3, 2, 3, 5, 1), 20, 20, 80.0)  # as successful, paid more: it is the best, disk2 no trap
+    assert reward_traps([disk2, twin, disk1]) == [disk1]  # 114 > 80 with 18/20 < 20/20
+    assert reward_traps([]) == []
