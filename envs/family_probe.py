@@ -65,12 +65,17 @@ def plan_record(plan: Sequence[int], outcomes: Sequence[Any]) -> PlanRecord:
                       float(np.mean(rewards)) if rewards else 0.0)
 
 
+def most_successful(records: Sequence[PlanRecord]) -> PlanRecord:
+    """The record with the highest success rate, ties to the higher mean reward (then the first given)."""
+    return max(records, key=lambda r: (r.rate, r.mean_reward))
+
+
 def reward_traps(records: Sequence[PlanRecord]) -> list[PlanRecord]:
-    """The plans that an agent paid by the mean reward would prefer to the most successful plan (the highest rate,
-    ties to the higher reward): a higher mean reward and a lower success rate. In the order given."""
+    """The plans that an agent paid by the mean reward would prefer to the most successful plan
+    (``most_successful``): a higher mean reward and a lower success rate. In the order given."""
     if not records:
         return []
-    best = max(records, key=lambda r: (r.rate, r.mean_reward))
+    best = most_successful(records)
     return [r for r in records if r.rate < best.rate and r.mean_reward > best.mean_reward]
 
 
@@ -204,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {list(rec.plan)}  {format_rate(rec.successes, rec.scenes)}  mean reward {rec.mean_reward:.3g}{tag}")
     traps = reward_traps(records)
     if traps:
-        best = max(records, key=lambda r: (r.rate, r.mean_reward))
+        best = most_successful(records)
         print(f"  reward traps (a higher mean reward than {list(best.plan)}'s {best.mean_reward:.3g} with fewer "
               f"successes; A2C paid this reward drifts towards them):")
         for rec in traps:
