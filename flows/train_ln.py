@@ -7,7 +7,9 @@ update's timestep (``ln/success_rate``, ``ln/window_success_rate``, ``ln/reward`
 final policy's deterministic plan executed on the unseen evaluation scenes (``ln/eval/*`` with a 95%
 Wilson interval). Variants: ``physics`` (A2C over the Representation Space, pre-trained actor and
 critic on ``demo_steps`` demonstrations; 0 is pure RL), ``bc`` (the same with the actor alone
-pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``).
+pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``), and ``physics_gated`` (not the paper's:
+the physics variant with the reward paid only on success, ``gated_rewards``; the curve's ``ln/reward`` stays the
+measure).
 
 Used by the pipeline's ``ln`` stage (``ln_stage``) and fanned out by ``flows.ablation``.
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -87,6 +90,32 @@ def point_config(point: LNPoint, ln: LNConfig) -> LNConfig:
                                pretrain_mode="bc" if point.variant == "bc" else "actor_critic")
 
 
+def gated_rewards(rewards: np.ndarray, infos: Sequence[dict[str, Any]]) -> np.ndarray:
+    """The ``physics_gated`` variant's rewards: each episode's reward (the task's measure) where its ``info`` says
+    the task's success rule held, else 0. The paper pays the measure alone (d, N, theta); where a task's rule asks
+    more than its measure does (the unscrew's grip of the cap), that reward can pay most for plans the rule
+    refuses. The demonstrations all succeeded, so their rewards, the critic's pre-training targets, are unchanged."""
+    rewards = np.asarray(rewards)
+    if len(infos) != len(rewards):
+        raise ValueError(f"{len(rewards)} rewards but {len(infos)} infos")
+    return rewards * np.array([bool(info.get("success", False)) for info in infos], dtype=rewards.dtype)
+
+
+def success_gated(venv: Any) -> Any:
+    """``venv`` (an SB3 vector env of plan environments) with its rewards passed through ``gated_rewards``."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper  # heavy: SB3
+
+    class SuccessGated(VecEnvWrapper):
+        def reset(self) -> Any:
+            return self.venv.reset()
+
+        def step_wait(self) -> Any:
+            obs, rewards, dones, infos = self.venv.step_wait()
+            return obs, gated_rewards(rewards, infos), dones, infos
+
+    return SuccessGated(venv)
+
+
 def write_demonstrations(demo_dir: Path, tasks: list[str], data: dict[str, Any]) -> dict[str, int]:
     """Write each task's demonstration transitions (``prl.ln.task_demonstrations`` of the RN features ``data``,
     as ``flows.compute_features.rn_features`` returns them) to ``demo_dir/demos-<task>.npz``; the count per task."""
@@ -151,6 +180,8 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         env_kwargs = {} if joint else {"pointnet_path": setup.pointnet_path, "n_points": setup.n_points,
                                        **({"n_frames": setup.n_frames} if setup.n_frames else {})}
         env = make_vec_env(point.task, cfg.n_envs, joint=joint, run_seed=point.seed, **env_kwargs)
+        if point.variant == "physics_gated":
+            env = success_gated(env)
         try:
             stats = feature_stats(demos.x) if demos is not None else (None, None)
             model = make_ln(env, cfg, *stats)

@@ -51,8 +51,14 @@ PAPER_LN_DEMO_STEPS = 1280
 PRETRAIN_MODES: tuple[str, ...] = ("actor_critic", "bc")
 """Demonstration pre-training: actor and critic (the paper), or the actor alone (behaviour cloning)."""
 
-LN_VARIANTS: tuple[str, ...] = ("physics", "bc", "joint")
-"""LN variants: physics-guided A2C with actor+critic pre-training, the same with BC, joint control."""
+PAPER_LN_VARIANTS: tuple[str, ...] = ("physics", "bc", "joint")
+"""The paper's LN variants (its Fig 8), a sweep's default: physics-guided A2C with actor+critic pre-training, the
+same with BC, joint control."""
+
+LN_VARIANTS: tuple[str, ...] = (*PAPER_LN_VARIANTS, "physics_gated")
+"""Every LN variant: the paper's, and ``physics_gated``, the physics variant whose A2C reward is the task's measure
+only on an episode that meets the task's success rule (0 otherwise; ``flows.train_ln.gated_rewards``). Where the
+rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail."""
 
 
 @dataclass(frozen=True)
@@ -314,8 +320,9 @@ class AblationConfig:
     """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
     tasks: tuple[str, ...] = ("hammer",)
     """Tasks swept, each with demonstrations in the dataset (the paper's four or their variants, ``known_tasks``)."""
-    variants: tuple[str, ...] = LN_VARIANTS
-    """LN variants swept: physics (actor+critic pre-training), bc, joint (joint control, no demonstrations)."""
+    variants: tuple[str, ...] = PAPER_LN_VARIANTS
+    """LN variants swept (``LN_VARIANTS``): physics (actor+critic pre-training), bc, joint (joint control, no
+    demonstrations); physics_gated only when named."""
     demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
     """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc only for K > 0, joint once."""
     seeds: tuple[int, ...] = (0, 1, 2)

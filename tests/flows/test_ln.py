@@ -85,6 +85,38 @@ def test_pretraining_minibatch_is_one_a2c_update_and_points_derive_their_setting
     assert point_config(LNPoint("hammer", "physics", 0, 1), run).pretrain_mode == "actor_critic"
 
 
+def test_the_gated_variant_pays_the_measure_only_on_success() -> None:
+    """``physics_gated``: the measure where the episode met the success rule, else 0, computed by hand; through the
+    SB3 wrapper the A2C reads rewards from; and otherwise the physics variant's settings."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from flows.train_ln import LNPoint, gated_rewards, point_config, success_gated
+
+    infos = [{"success": True, "measure": 114.0}, {"success": False, "measure": 163.0}, {"measure": 9.0}]
+    assert gated_rewards(np.array([114.0, 163.0, 9.0], np.float32), infos).tolist() == [114.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="3 rewards but 2 infos"):
+        gated_rewards(np.zeros(3), infos[:2])
+
+    class Spin(gym.Env):  # pays 5 for every action; succeeds only on action 1
+        observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+        action_space = gym.spaces.Discrete(2)
+
+        def reset(self, *, seed=None, options=None):
+            return np.zeros(2, np.float32), {}
+
+        def step(self, action):
+            return np.zeros(2, np.float32), 5.0, True, False, {"success": int(action) == 1}
+
+    venv = success_gated(DummyVecEnv([Spin, Spin]))
+    venv.reset()
+    _, rewards, dones, infos = venv.step(np.array([0, 1]))
+    assert rewards.tolist() == [0.0, 5.0] and dones.all() and [i["success"] for i in infos] == [False, True]
+    run = LNConfig(timesteps=64)
+    assert point_config(LNPoint("unscrew_mixed", "physics_gated", 1280, 1), run) == \
+        point_config(LNPoint("unscrew_mixed", "physics", 1280, 1), run)
+    assert LNPoint("unscrew_mixed", "physics_gated", 1280, 1).name == "ln-unscrew_mixed-physics_gated-k1280-seed1"
+
+
 @pytest.mark.parametrize(("kwargs", "match"), [
     ({"n_envs": 3}, r"ln.n_envs must divide ln.steps_per_update \(64\)"),
     ({"pretrain_mode": "dagger"}, "unknown ln.pretrain_mode 'dagger'"),

@@ -174,6 +174,14 @@ def test_ablation_config_names_bad_values(tmp_path: Path) -> None:
             make_ablation_config("data", "pn.pt", **overrides)
 
 
+def test_a_sweep_runs_the_papers_variants_unless_told() -> None:
+    """The default sweep is the paper's three variants; the gated reward (not the paper's) only when named."""
+    assert make_ablation_config("data", "pn.pt").variants == ("physics", "bc", "joint")
+    assert make_ablation_config("data", "pn.pt", variants=["physics_gated"]).variants == ("physics_gated",)
+    with pytest.raises(ConfigError, match="physics_gated"):
+        make_ablation_config(variants=["physics_gated"])  # a plan variant: it needs the demonstrations
+
+
 def test_only_a_joint_control_sweep_runs_without_a_dataset() -> None:
     joint = make_ablation_config(variants=["joint"], seeds=[2])
     assert (joint.dataset_root, joint.pointnet_path, joint.variants) == (None, None, ("joint",))

@@ -166,6 +166,12 @@ def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     assert target_line("unscrew_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos "
                                                     "(K = 400), pooled >= 0.85): met (85/100 over 2 seeds).")
     assert target_line("sweep", groups) == "Target (physics K = 1,280, pooled >= 0.90): not run yet."
+    groups[Group(4, "unscrew_mixed", 3, "physics_gated", 400, 3200)] = points(48, 46)
+    groups[Group(4, "unscrew_mixed", 3, "physics_gated", 200, 3200)] = points(10)  # another K: not this target's
+    assert target_line("unscrew_mixed", groups) == (
+        "Target (a task variant, physics pre-trained on its demos (K = 400), pooled >= 0.85): met (85/100 over 2 "
+        "seeds). With the reward paid only on success (physics_gated, the same K; not the paper's reward): "
+        "94/100 = 0.94 (0.88-0.97) over 2 seeds.")
     assert target_line("sweep_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos, "
                                                   "pooled >= 0.85): not run yet.")
 
