@@ -34,12 +34,13 @@ class Dataset:
 
 
 def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: Path, repo_id: str,
-                   video: VideoSpec | None = None) -> ExportReport:
+                   video: VideoSpec | None = None, workers: int = 1) -> ExportReport:
     """Write, reload, validate and move the dataset into place, with the cameras' video when ``video`` is given
     (each demo replayed by ``envs.video.DemoRenderer``); or, when the dataset at ``root`` was exported from the
     same demo bytes, labels and video settings by the same export code and lerobot version
-    (``prl.export.export_key``), reload and validate it instead (``report.reused``). No result cache: the
-    result is a directory that can change under it."""
+    (``prl.export.export_key``), reload and validate it instead (``report.reused``). ``workers`` processes write
+    a dataset without video (``prl.export.export_lerobot``; the same content, so not in the key). No result
+    cache: the result is a directory that can change under it."""
     import lerobot  # heavy: lerobot
 
     from prl.export import export_key, export_lerobot, reusable_export
@@ -52,7 +53,7 @@ def export_dataset(demo_paths: list[Path], labels: dict[str, list[int]], root: P
     if report is not None:
         return report
     if video is None:
-        return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key)
+        return export_lerobot(demo_paths, root, repo_id=repo_id, per_episode_label=labels, key=key, workers=workers)
     from envs.video import DemoRenderer  # heavy: the simulator and its renderer, only to draw the video
 
     with DemoRenderer(video) as render:
@@ -75,7 +76,7 @@ def export_stage(cfg: PipelineConfig, synthesis: Synthesis, labels: Labels) -> D
         repo_id = f"prl/{'-'.join(tasks)}"
         root = cfg.output_dir / "datasets" / f"{'-'.join(tasks)}-seed{cfg.seed}"
         video = cfg.video_spec() if cfg.video else None
-        report = export_dataset(paths, labels.recovered_by_path(synthesis), root, repo_id, video)
+        report = export_dataset(paths, labels.recovered_by_path(synthesis), root, repo_id, video, cfg.workers)
         digest = dataset_digest(report.root)
         mlflow.log_metrics({"episodes": report.n_episodes, "frames": report.n_frames,
                             "size_mb": report.size_bytes / 1e6, "export_seconds": report.seconds,

@@ -22,6 +22,7 @@ from prl.export_schema import (
     EXPORT_KEY_FILE,
     FEATURES,
     NO_LABEL,
+    SCENES_FILE,
     VIDEO_CAMERAS,
     ExportError,
     VideoSpec,
@@ -191,6 +192,58 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
     assert "meta/stats.json" in got and sorted(got) == sorted(want)
     assert [k for k in want if not _same(want[k], got[k])] == []
     assert (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint) == patched
+
+
+def test_export_parts_are_contiguous_and_even() -> None:
+    from prl.export import export_parts
+
+    assert export_parts(10, 2, 4) == [range(5), range(5, 10)]
+    assert export_parts(7, 3, 1) == [range(3), range(3, 5), range(5, 7)]
+    assert export_parts(5, 2, 3) == [range(5)]  # two parts would hold under 3 episodes each
+    assert export_parts(1, 4, 1) == [range(1)]
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        export_lerobot([Path("any.npz")], Path("never"), workers=0)
+
+
+def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two worker processes and lerobot's merge give the same frames, episodes, tasks, scene records and statistics
+    (to float rounding) as one process; nothing of the parts is left beside the dataset."""
+    import json
+
+    import pandas as pd
+
+    import prl.export
+    from prl.demo import save_demo
+
+    paths = [save_demo(_synthetic_demo(seed, t), tmp_path / "demos" / f"ep{seed}.npz")
+             for seed, t in ((1, 23), (2, 17), (3, 9), (4, 30), (5, 12))]
+    labels = {1: [0, 1, 2, 3, 4, 5], 4: [1, 1, 1, 1, 1, 1]}
+    one = export_lerobot(paths, tmp_path / "one", repo_id=REPO_ID, per_episode_label=labels)
+    monkeypatch.setattr(prl.export, "PARALLEL_MIN_EPISODES", 2)  # 5 episodes: parts of 3 and 2
+    two = export_lerobot(paths, tmp_path / "two", repo_id=REPO_ID, per_episode_label=labels, workers=2)
+    assert (two.n_episodes, two.n_frames) == (one.n_episodes, one.n_frames) == (5, 91)
+    assert _siblings(two.root) == []
+
+    def table(root: Path, pattern: str, key: str) -> pd.DataFrame:
+        frames = [pd.read_parquet(f) for f in sorted(root.glob(pattern))]
+        return pd.concat(frames).sort_values(key).reset_index(drop=True)
+
+    a, b = table(one.root, "data/*/*.parquet", "index"), table(two.root, "data/*/*.parquet", "index")
+    assert list(b.columns) == list(a.columns) and b["episode_index"].tolist() == sorted(b["episode_index"])
+    for col in a.columns:
+        assert np.array_equal(np.stack(a[col].to_numpy()), np.stack(b[col].to_numpy())), col
+    keep = ["episode_index", "length", "tasks", "dataset_from_index", "dataset_to_index"]
+    ea, eb = (table(r, "meta/episodes/*/*.parquet", "episode_index")[keep] for r in (one.root, two.root))
+    assert ea.astype(str).equals(eb.astype(str))
+    assert pd.read_parquet(one.root / "meta/tasks.parquet").equals(pd.read_parquet(two.root / "meta/tasks.parquet"))
+    assert (one.root / SCENES_FILE).read_text() == (two.root / SCENES_FILE).read_text()
+    sa, sb = (json.loads((r / "meta/stats.json").read_text()) for r in (one.root, two.root))
+    assert sorted(sa) == sorted(sb)
+    for feature, stats in sa.items():
+        for name, value in stats.items():
+            assert np.allclose(np.asarray(value, float), np.asarray(sb[feature][name], float), rtol=1e-5,
+                               atol=1e-6), (feature, name)
+    assert _load_dataset(two.root)[40]["index"].item() == 40  # lerobot reloads it
 
 
 def test_lean_writes_write_the_last_stats_once_and_none_on_error(tmp_path: Path) -> None:
