@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import itertools
 import json
 import os
 import shutil
@@ -30,6 +29,7 @@ from prl.dataset_files import check_destination, move_into_place, recover_stale,
 from prl.demo import Demo, load_demo
 from prl.episode_stats import fast_episode_stats
 from prl.export_check import EpisodeCheck, validate_lerobot
+from prl.export_merge import export_parts, write_parallel
 from prl.export_schema import (
     DEFAULT_FPS,
     DEFAULT_REPO_ID,
@@ -86,9 +86,9 @@ def export_lerobot(
     ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
     export can be skipped with :func:`reusable_export`.
 
-    ``workers`` > 1 (without video, and with at least ``PARALLEL_MIN_EPISODES`` episodes per worker) writes
+    ``workers`` > 1 (without video, and with at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per worker) writes
     contiguous parts of ``demo_paths`` as datasets of their own in that many processes and merges them in order
-    with lerobot's ``aggregate_datasets`` (:func:`_write_parallel`): the same episodes, frames and statistics as
+    with lerobot's ``aggregate_datasets`` (``prl.export_merge``): the same episodes, frames and statistics as
     one process writes (the statistics up to float rounding), in other parquet files.
 
     The dataset is written into ``root.parent / f".{root.name}.staging-<pid>"``, finalized,
@@ -137,8 +137,9 @@ def export_lerobot(
         with _quiet_fast_writes(fast=fast_writes):
             parts = export_parts(len(paths), workers if video is None else 1)
             if len(parts) > 1:
-                checks, video_seconds = _write_parallel(paths, parts, staging, repo_id, fps, per_episode_label,
-                                                        fast_writes), 0.0
+                checks = write_parallel(_write_part, [[paths[i] for i in part] for part in parts], staging,
+                                        repo_id, fps, per_episode_label, fast_writes)
+                video_seconds = 0.0
             else:
                 with _lean_writes() if fast_writes else contextlib.nullcontext():
                     checks, video_seconds = _write(paths, staging, repo_id, fps, per_episode_label, video,
@@ -269,103 +270,13 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Map
     return checks, video_seconds
 
 
-PARALLEL_MIN_EPISODES = 100
-"""Episodes per worker below which ``export_lerobot`` writes in one process: a worker process's start (imports of
-lerobot and torch, a few seconds) costs what some tens of episodes take to write (0.15-0.3 s each)."""
-
-
-def export_parts(n_episodes: int, workers: int, min_per_worker: int | None = None) -> list[range]:
-    """The contiguous ranges of episode indices that ``workers`` processes write, as even as they can be (the first
-    ones one longer); fewer parts when a part would hold under ``min_per_worker`` episodes (default
-    ``PARALLEL_MIN_EPISODES``), one part at least."""
-    floor = PARALLEL_MIN_EPISODES if min_per_worker is None else min_per_worker
-    k = max(1, min(workers, n_episodes // max(1, floor)))
-    sizes = [n_episodes // k + (1 if i < n_episodes % k else 0) for i in range(k)]
-    starts = np.cumsum([0, *sizes])
-    return [range(int(a), int(b)) for a, b in itertools.pairwise(starts)]
-
-
 def _write_part(paths: list[Path], root: Path, repo_id: str, fps: int, labels: Mapping[Any, Any] | None,
                 fast: bool) -> list[EpisodeCheck]:
-    """One worker process's part of ``_write_parallel``: ``paths`` written as a dataset of its own at ``root``."""
+    """One worker process's part of ``prl.export_merge.write_parallel``: ``paths`` written as a dataset of its own at
+    ``root``; returns their checks."""
     with _quiet_fast_writes(fast=fast), _lean_writes() if fast else contextlib.nullcontext():
         checks, _ = _write(paths, root, repo_id, fps, labels, None, None)
     return checks
-
-
-def _write_parallel(paths: list[Path], parts: list[range], staging: Path, repo_id: str, fps: int,
-                    labels: Mapping[Any, Any] | None, fast: bool) -> list[EpisodeCheck]:
-    """Write ``paths[part]`` for each of ``parts`` (contiguous, in order) in its own process as a dataset under a
-    sibling of ``staging`` (``.<name>.staging-parts-<pid>``, which a later export cleans up if this one is killed),
-    then merge them in order into ``staging`` with lerobot's ``aggregate_datasets`` (episode, frame and task
-    indices shifted, statistics aggregated) and the scene records renumbered. Returns the episodes' checks."""
-    import multiprocessing  # heavy: only for a parallel export
-    from concurrent.futures import ProcessPoolExecutor
-
-    from lerobot.datasets.aggregate import aggregate_datasets  # heavy (pandas, lerobot): only when merging
-
-    work = staging.parent / staging.name.replace(".staging-", ".staging-parts-")
-    shutil.rmtree(work, ignore_errors=True)
-    roots = [work / f"part{i}" for i in range(len(parts))]
-    try:
-        with ProcessPoolExecutor(len(parts), mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_write_part, [paths[i] for i in part], part_root, repo_id, fps, labels, fast)
-                       for part, part_root in zip(parts, roots, strict=True)]
-            checks = [c for f in futures for c in f.result()]
-        with _quiet_aggregate():
-            aggregate_datasets([repo_id] * len(roots), repo_id, roots=roots, aggr_root=staging)
-        _index_stats_from_episodes(staging)
-        scenes = []
-        for part_root in roots:
-            for line in (part_root / SCENES_FILE).read_text().splitlines():
-                scenes.append({**json.loads(line), "episode_index": len(scenes)})
-        with open(staging / SCENES_FILE, "w") as fh:
-            fh.writelines(json.dumps(row) + "\n" for row in scenes)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return checks
-
-
-INDEX_FEATURES: tuple[str, ...] = ("episode_index", "index", "task_index")
-"""The features a part numbers from 0 and the merge renumbers: lerobot 0.6's ``aggregate_datasets`` renumbers them
-in the data and in each episode's statistics, but aggregates ``meta/stats.json`` from the parts' own."""
-
-
-def _index_stats_from_episodes(root: Path) -> None:
-    """``meta/stats.json`` of ``INDEX_FEATURES`` aggregated again (lerobot's ``aggregate_stats``, as a one-process
-    write aggregates them episode by episode) from the merged episodes' statistics of them in ``meta/episodes``;
-    the other features' statistics are the merge's."""
-    import pandas as pd  # heavy: only after a merge
-    from lerobot.datasets.compute_stats import aggregate_stats
-    from lerobot.datasets.io_utils import load_stats, write_stats
-
-    episodes = pd.concat([pd.read_parquet(f) for f in sorted((root / "meta" / "episodes").glob("*/*.parquet"))])
-    columns = {f: [c for c in episodes.columns if c.startswith(f"stats/{f}/")] for f in INDEX_FEATURES}
-    episodes = episodes[["episode_index", *(c for cols in columns.values() for c in cols)]]
-    per_episode = [{f: {c.rsplit("/", 1)[1]: np.asarray(row[c]) for c in cols} for f, cols in columns.items()}
-                   for _, row in episodes.sort_values("episode_index").iterrows()]
-    stats = load_stats(root)
-    stats.update(aggregate_stats(per_episode))
-    write_stats(stats, root)
-
-
-@contextlib.contextmanager
-def _quiet_aggregate() -> Iterator[None]:
-    """lerobot's ``aggregate_datasets`` without its progress bar and INFO lines."""
-    import logging
-
-    import tqdm  # heavy: only around a merge
-
-    logger = logging.getLogger("lerobot.datasets.aggregate")
-    level = logger.level
-    logger.setLevel(logging.WARNING)
-    original = tqdm.tqdm
-    tqdm.tqdm = lambda *args, **kwargs: original(*args, **{**kwargs, "disable": True})
-    try:
-        yield
-    finally:
-        tqdm.tqdm = original
-        logger.setLevel(level)
 
 
 def _camera_frames(demo: Demo, video: VideoSpec, render_images: RenderImages, source: str) -> dict[str, np.ndarray]:

@@ -157,8 +157,9 @@ def test_synthetic_round_trip_and_stale_staging_cleanup(tmp_path: Path, syntheti
     from prl.demo import load_demo
 
     root = tmp_path / "out" / "ds"
-    stale = root.parent / f".{root.name}.staging-{_dead_pid()}"
-    (stale / "meta").mkdir(parents=True)  # left by a killed export
+    dead = _dead_pid()
+    for stale in (root.parent / f".{root.name}.staging-{dead}", root.parent / f".{root.name}.staging-parts-{dead}"):
+        (stale / "meta").mkdir(parents=True)  # left by a killed export (one process; several)
     report = export_lerobot(synthetic_paths, root, repo_id=REPO_ID, per_episode_label={2: [0, 1, 2, 3, 4, 5]})
     assert report.n_episodes == 2 and report.episode_lengths == (23, 17) and report.n_frames == 40
     assert report.n_labelled == 1 and report.checked_against_demos
@@ -195,7 +196,7 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
 
 
 def test_export_parts_are_contiguous_and_even() -> None:
-    from prl.export import export_parts
+    from prl.export_merge import export_parts
 
     assert export_parts(10, 2, 4) == [range(5), range(5, 10)]
     assert export_parts(7, 3, 1) == [range(3), range(3, 5), range(5, 7)]
@@ -212,14 +213,14 @@ def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeyp
 
     import pandas as pd
 
-    import prl.export
+    import prl.export_merge
     from prl.demo import save_demo
 
     paths = [save_demo(_synthetic_demo(seed, t), tmp_path / "demos" / f"ep{seed}.npz")
              for seed, t in ((1, 23), (2, 17), (3, 9), (4, 30), (5, 12))]
     labels = {1: [0, 1, 2, 3, 4, 5], 4: [1, 1, 1, 1, 1, 1]}
     one = export_lerobot(paths, tmp_path / "one", repo_id=REPO_ID, per_episode_label=labels)
-    monkeypatch.setattr(prl.export, "PARALLEL_MIN_EPISODES", 2)  # 5 episodes: parts of 3 and 2
+    monkeypatch.setattr(prl.export_merge, "PARALLEL_MIN_EPISODES", 2)  # 5 episodes: parts of 3 and 2
     two = export_lerobot(paths, tmp_path / "two", repo_id=REPO_ID, per_episode_label=labels, workers=2)
     assert (two.n_episodes, two.n_frames) == (one.n_episodes, one.n_frames) == (5, 91)
     assert _siblings(two.root) == []
