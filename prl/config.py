@@ -206,7 +206,7 @@ class PipelineConfig:
     """Share of the adaptive rounds' other plans that replay an earlier round's successful plan (0: none)."""
     workers: int = 2
     """Dask worker processes of the local cluster; also the processes that write the dataset (without video, from
-    ``prl.export.PARALLEL_MIN_EPISODES`` episodes per process)."""
+    ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process)."""
     dask_address: str | None = None
     """Address of a running Dask scheduler to use instead of a local cluster."""
     train_rn: bool = True
