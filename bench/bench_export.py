@@ -6,7 +6,7 @@ per-frame image embedding and per-episode statistics); ``fast_writes=True`` with
 lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed); the same with the
 statistics by ``prl.episode_stats``; and ``fast_writes=True`` (also ``prl.export._lean_writes``: stats.json once,
 no fingerprint hashing); with ``--workers N`` (N > 1) also ``fast_writes`` in N processes merged by lerobot
-(``export_lerobot(workers=N)``, at least ``prl.export.PARALLEL_MIN_EPISODES`` episodes per process). Each export is
+(``export_lerobot(workers=N)``, at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is
 the real one
 (``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
 whether the datasets hold the same files as lerobot's writes: the same bytes, and for the parquet files the same

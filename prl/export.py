@@ -86,10 +86,10 @@ def export_lerobot(
     ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
     export can be skipped with :func:`reusable_export`.
 
-    ``workers`` > 1 (without video, and with at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per worker) writes
-    contiguous parts of ``demo_paths`` as datasets of their own in that many processes and merges them in order
-    with lerobot's ``aggregate_datasets`` (``prl.export_merge``): the same episodes, frames and statistics as
-    one process writes (the statistics up to float rounding), in other parquet files.
+    ``workers`` > 1 (without video, and with at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per
+    worker) writes contiguous parts of ``demo_paths`` as datasets of their own in that many processes and merges
+    them in order with lerobot's ``aggregate_datasets`` (``prl.export_merge``): the same episodes, frames and
+    statistics as one process writes (the statistics up to float rounding), in other parquet files.
 
     The dataset is written into ``root.parent / f".{root.name}.staging-<pid>"``, finalized,
     reloaded with ``LeRobotDataset`` and validated against the demos
