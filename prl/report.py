@@ -146,6 +146,11 @@ def _runs(members: Sequence[Mapping[str, Any]]) -> list[list[float]]:
     return [[float(o["success"]) for o in s["eval"]["outcomes"]] for s in members]
 
 
+def _pooled(members: Sequence[Mapping[str, Any]]) -> tuple[int, int]:
+    """Successes and scenes of ``members``' final evaluations together."""
+    return sum(s["eval"]["successes"] for s in members), sum(s["eval"]["n"] for s in members)
+
+
 def _rate(k: int, n: int) -> str:
     if n == 0:
         return "0/0"
@@ -232,7 +237,7 @@ def success_tables(groups: Mapping[Group, Sequence[Mapping[str, Any]]],
         for g, members in groups.items():
             if g.task != task:
                 continue
-            k, n = sum(s["eval"]["successes"] for s in members), sum(s["eval"]["n"] for s in members)
+            k, n = _pooled(members)
             per_seed = ", ".join(f"{s['eval']['successes']}/{s['eval']['n']}" for s in members)
             seeds = ",".join(str(s["point"]["seed"]) for s in members)
             lines.append(f"| {g.label} | {seeds} | {per_seed} | {_rate(k, n)} | {_iqm_cell({task: _runs(members)})} "
@@ -260,14 +265,14 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) 
         target, members = VARIANT_TARGET, physics.get(k)
     if not members:
         return f"Target ({head}, pooled >= {target:.2f}): not run yet."
-    won, n = sum(s["eval"]["successes"] for s in members), sum(s["eval"]["n"] for s in members)
+    won, n = _pooled(members)
     verdict = "met" if n and won / n >= target else "**missed**"
     line = (f"Target ({head}, pooled >= {target:.2f}): {verdict} ({won}/{n} over {len(members)} "
             f"seed{'s' if len(members) != 1 else ''}).")
     gated = [s for g, m in groups.items() if g.task == task and g.variant == "physics_gated"
              and g.timesteps == PAPER_TIMESTEPS and g.demo_steps == k for s in m]
     if gated:  # beside the target's verdict, never in its place: the reward is not the paper's
-        won, n = sum(s["eval"]["successes"] for s in gated), sum(s["eval"]["n"] for s in gated)
+        won, n = _pooled(gated)
         line += (f" With the reward paid only on success (physics_gated, the same K; not the paper's reward): "
                  f"{_rate(won, n)} over {len(gated)} seed{'s' if len(gated) != 1 else ''}.")
     return line
@@ -508,7 +513,8 @@ REWARD_TEXT = (
     "tweeze's cube touched by no hand link, the hammer and the tweezers still on the table; `docs/tasks.md`). Where "
     "a failure is paid at least as much as a success, RL can climb the reward away from success. Counted over the "
     "final evaluations of every point below; the reward is in the task's unit (hammer and tweeze cm, sweep cubes, "
-    "unscrew degrees; a variant as its base task).")
+    "unscrew degrees; a variant as its base task). A `physics_gated` point was paid it only where it succeeded; its "
+    "failures are counted here with the measure they reached.")
 """What the report says of its reward table."""
 PROVENANCE_TEXT = (
     "Each summary records the code version of what decides its task's outcome (`prl.version.outcome_version`), the "
