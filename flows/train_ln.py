@@ -180,9 +180,9 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         env_kwargs = {} if joint else {"pointnet_path": setup.pointnet_path, "n_points": setup.n_points,
                                        **({"n_frames": setup.n_frames} if setup.n_frames else {})}
         env = make_vec_env(point.task, cfg.n_envs, joint=joint, run_seed=point.seed, **env_kwargs)
-        if point.variant == "physics_gated":
-            env = success_gated(env)
         try:
+            if point.variant == "physics_gated":
+                env = success_gated(env)  # its close() closes the environments it wraps
             stats = feature_stats(demos.x) if demos is not None else (None, None)
             model = make_ln(env, cfg, *stats)
             pre_rows = [] if served is None else pretrain(model, served, cfg.pretrain_mode, cfg.pretrain_epochs,
