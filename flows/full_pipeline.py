@@ -26,7 +26,7 @@ from flows.check_assets import assets_stage
 from flows.compute_features import features_stage
 from flows.evaluate_rn import rn_eval_stage
 from flows.export_dataset import export_stage
-from flows.plan_trials import trials_stage
+from flows.plan_trials import run_all_trials, trials_stage
 from flows.recover_labels import labels_stage
 from flows.stage_pictures import pictures_stage
 from flows.synthesize import synthesis_stage
@@ -67,7 +67,8 @@ def run_pipeline(cfg: PipelineConfig) -> dict[str, dict[str, float]]:
     with tracking.parent_run(f"pipeline-{cfg.profile}", params=cfg,
                              tags={"code_version": version, "git_commit": git_commit()}) as parent:
         assets = assets_stage()
-        trials = [trials_stage(cfg, assets, name, out_dir, version) for name in cfg.tasks]
+        outcomes = run_all_trials(cfg, version)
+        trials = [trials_stage(cfg, assets, name, out_dir, outcomes[name]) for name in cfg.tasks]
         if cfg.render:
             for name in cfg.tasks:
                 pictures_stage(assets, name, cfg.seed, out_dir / f"{name}_stages")

@@ -3,16 +3,19 @@ each executed in simulation on domain-randomised scenes (child run ``trials-<tas
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from prefect import task
+from prefect import flow, task
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
+from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
 
-from envs.trials import TrialOutcome
+from envs.trials import PLAN_KINDS, TrialOutcome, kind_seed
 from flows.artifacts import publish_table, rate_row
 from flows.check_assets import Assets
+from flows.worker_env import worker_env
 from prl import tracking
 from prl.config import PipelineConfig
 
@@ -29,28 +32,64 @@ class Trials:
 @task(name="plan-trials", task_run_name="trials-{task_name}-{kind}", cache_policy=INPUTS + TASK_SOURCE,
       persist_result=True)
 def plan_trials(task_name: str, kind: str, n: int, seed: int, n_frames: int,
-                code_version: str) -> list[TrialOutcome]:
+                code_version: str, progress: bool = True) -> list[TrialOutcome]:
     """Run ``n`` plans of ``kind`` ('expert', 'prior', 'uniform') on scenes seeded from ``seed``.
 
     ``code_version`` is part of the cache key so a code change re-runs the simulation.
     """
+    import envs  # noqa: F401  (registers the hand and the tasks, in a worker process too)
     from envs.trials import plan_set, run_trials, trial_scene_seeds  # heavy: loads the simulator
 
-    return run_trials(task_name, plan_set(task_name, kind, n, seed), trial_scene_seeds(seed, n), n_frames=n_frames)
+    return run_trials(task_name, plan_set(task_name, kind, n, seed), trial_scene_seeds(seed, n), n_frames=n_frames,
+                      progress=progress)
+
+
+@flow(name="plan-trials", validate_parameters=False)
+def _trials_flow(jobs: list[tuple[str, str]], n: int, seed: int, n_frames: int, code_version: str,
+                 progress: bool) -> list[list[TrialOutcome]]:
+    futures = [plan_trials.submit(name, kind, n, kind_seed(seed, kind), n_frames, code_version, progress)
+               for name, kind in jobs]
+    return [f.result() for f in futures]
+
+
+def run_all_trials(cfg: PipelineConfig, code_version: str) -> dict[str, dict[str, list[TrialOutcome]]]:
+    """Every task's trials of every plan kind (``envs.trials.PLAN_KINDS``) on ``cfg.eval_scenes`` scenes:
+    ``{task: {kind: outcomes}}``. With ``cfg.workers`` > 1 the task-kind pairs run at once in that many processes of
+    their own (Prefect's ``ProcessPoolTaskRunner``; each builds its environments), with no progress bars, which
+    would overwrite each other; else one after another in this process, with them. The outcomes do not depend on
+    the number of processes: each pair's scenes and plans come from the run's seed. The processes report to this
+    process's Prefect API (``flows.worker_env.worker_env``): without it each started a temporary server of its own."""
+
+    jobs = [(name, kind) for name in cfg.tasks for kind in PLAN_KINDS]
+    parallel = cfg.workers > 1 and len(jobs) > 1
+    runner = ProcessPoolTaskRunner(max_workers=min(cfg.workers, len(jobs))) if parallel else \
+        ThreadPoolTaskRunner(max_workers=1)
+    saved = os.environ.get("PREFECT_API_URL")
+    if parallel:  # the spawned processes inherit this process's environment
+        os.environ["PREFECT_API_URL"] = worker_env()["PREFECT_API_URL"]
+    try:
+        outcomes = _trials_flow.with_options(task_runner=runner)(jobs, cfg.eval_scenes, cfg.seed, cfg.episode_frames,
+                                                                 code_version, not parallel)
+    finally:
+        if saved is None:
+            os.environ.pop("PREFECT_API_URL", None)
+        else:
+            os.environ["PREFECT_API_URL"] = saved
+    out: dict[str, dict[str, list[TrialOutcome]]] = {name: {} for name in cfg.tasks}
+    for (name, kind), result in zip(jobs, outcomes, strict=True):
+        out[name][kind] = result
+    return out
 
 
 @task(name="trials", task_run_name="trials-{task_name}", cache_policy=NO_CACHE)
-def trials_stage(cfg: PipelineConfig, assets: Assets, task_name: str, out_dir: Path, code_version: str) -> Trials:
-    """Run every plan kind of ``envs.trials.PLAN_KINDS`` on ``cfg.eval_scenes`` scenes and log rates, measures,
-    per-scene outcomes and a bar chart."""
+def trials_stage(cfg: PipelineConfig, assets: Assets, task_name: str, out_dir: Path,
+                 outcomes: dict[str, list[TrialOutcome]]) -> Trials:
+    """Log one task's trials (``run_all_trials``: every plan kind of ``envs.trials.PLAN_KINDS`` on ``cfg.eval_scenes``
+    scenes): rates, measures, per-scene outcomes and a bar chart."""
     from envs.tasks import task_class  # heavy: loads the simulator
-    from envs.trials import PLAN_KINDS, kind_seed
 
     with tracking.child_run(f"trials-{task_name}", params={"task": task_name, "scenes": cfg.eval_scenes,
                                                            "plb_n_plans": assets.plb_n_plans}):
-        outcomes = {kind: plan_trials(task_name, kind, cfg.eval_scenes, kind_seed(cfg.seed, kind), cfg.episode_frames,
-                                      code_version)
-                    for kind in PLAN_KINDS}
         measure_key = task_class(task_name).measure_key
         rates = _log_trials(task_name, outcomes, measure_key, out_dir)
     publish_table(f"trial-rates-{task_name}", [

@@ -24,6 +24,7 @@ from tqdm.auto import tqdm
 from envs.synthesis import ShardResult, ShardSpec, split_successes
 from flows.artifacts import publish_table
 from flows.plan_trials import Trials
+from flows.worker_env import worker_env
 from prl import tracking
 from prl.config import PipelineConfig
 from prl.constants import EPISODE_FRAMES
@@ -89,22 +90,6 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
                                           "dashboard_address": None, "env": worker_env(),
                                           "silence_logs": logging.WARNING,
                                           "config": {"distributed.worker.profile.enabled": False}})
-
-
-def worker_env() -> dict[str, str]:
-    """Environment for local Dask workers: the Prefect API URL this process uses, Dask's logs at warnings only.
-
-    When ``PREFECT_API_URL`` is unset, Prefect's temporary server of this process is started (if it
-    is not yet) and its URL is passed on, so workers report to it instead of starting their own.
-    """
-    from prefect.client.orchestration import get_client  # heavy: prefect
-    from prefect.settings import PREFECT_API_URL
-
-    url = PREFECT_API_URL.value()
-    if not url:
-        with get_client(sync_client=True) as client:
-            url = str(client.api_url)
-    return {"PREFECT_API_URL": str(url).rstrip("/"), "DASK_LOGGING__DISTRIBUTED": "warning"}
 
 
 class _LogTally:

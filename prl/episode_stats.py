@@ -1,91 +1,186 @@
-"""lerobot's per-episode statistics, computed the same way in fewer numpy calls.
+"""lerobot's per-episode statistics, computed the same way without its dense histograms.
 
 Every ``save_episode`` of a lerobot 0.6 dataset computes, per feature, min, max, mean, std and five quantiles
-(``lerobot.datasets.compute_stats.RunningQuantileStats``): one 5,000-bin histogram per dimension, filled by one
-``np.histogram`` call per dimension, and each quantile read from a fresh ``np.cumsum`` of that histogram, per
-dimension and per quantile. For a demo's 17 features that is about 5,000 cumulative sums of 5,000 bins an
-episode, 0.23 s of the export's 0.38 s ``save_episode`` (cProfile of 40 hammer demos, 2026-12-02).
+(``lerobot.datasets.compute_stats.RunningQuantileStats``, one ``update`` with the episode's frames): per
+dimension, 5,001 bin edges by ``np.linspace`` between the minimum and the maximum (padded by 1e-10), a
+5,000-bin histogram by ``np.histogram``, and each quantile read from a fresh ``np.cumsum`` of that histogram. For
+a demo's 17 features and 150 frames that is about 200 ``linspace`` calls and 5,000 cumulative sums of 5,000 bins
+an episode, most of the export's time (cProfile of 40 hammer demos, 2026-12-02: 0.23 s of a 0.38 s
+``save_episode``).
 
-``fast_episode_stats()`` replaces the two methods for the duration of a block with these, which give the same
-numbers bit for bit (``tests/prl/test_episode_stats.py`` compares them with lerobot's on the dtypes and edge cases
-a dataset has):
+``fast_episode_stats()`` makes ``get_feature_stats`` use :class:`SparseQuantileStats` for the duration of a block:
+a ``RunningQuantileStats`` whose first ``update`` keeps each value's bin instead of a histogram (an episode's
+150 values occupy at most 150 of the 5,000 bins) and whose quantiles are read from those bins. The numbers are
+lerobot's bit for bit (``tests/prl/test_episode_stats.py`` compares them on the dtypes and edge cases a dataset
+has):
 
-- ``update_histograms``: each value's bin by one ``searchsorted`` over the dimension's edges and one ``bincount``,
-  with ``np.histogram``'s rule (a bin holds ``edges[j] <= v < edges[j + 1]``, the last one also its right edge;
-  values outside the edges, and NaN, are dropped). Counts are integers, so any exact counting gives the same.
-- ``compute_quantiles``: the cumulative counts of the occupied bins only (integer-valued float64 sums below 2**53:
-  exact in any order), the first bin reaching the target as the first occupied bin whose cumulative count is not
-  below it (``searchsorted``'s left side on a non-decreasing array), then lerobot's interpolation, element for
-  element in the same dtypes, for all dimensions at once.
+- the edges: ``np.linspace`` called once for all dimensions whose range is not zero and once for those whose range
+  is zero (linspace's arithmetic is elementwise, but it takes another branch for the whole call when any step is
+  zero, so the two kinds are never mixed);
+- a value's bin: ``np.histogram``'s rule (a bin holds ``edges[j] <= v < edges[j + 1]``, the last one also its right
+  edge), by one ``searchsorted`` per dimension. (A feature holding NaN has NaN edges, and lerobot's histogram of it
+  means nothing; a demo's frames are finite.)
+- a quantile ``q``: lerobot's first bin whose cumulative count reaches ``target = q * count``. Counts are integers,
+  so that is the bin of the ``ceil(target)``-th smallest counted value; the counts before it and in it are
+  counted from the sorted bins, and lerobot's interpolation is applied element for element in the same dtypes,
+  for all dimensions at once.
+
+A second ``update`` (lerobot's running use; not an episode's) first builds the dense histograms from the kept bins
+and then runs lerobot's own code.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
 
-def update_histograms(stats: Any, batch: np.ndarray) -> None:
-    """``RunningQuantileStats._update_histograms``: add ``batch`` (N, D) to the per-dimension histograms."""
-    n_bins = stats._num_quantile_bins
-    for i in range(batch.shape[1]):
-        edges, values = stats._bin_edges[i], batch[:, i]
-        idx = np.searchsorted(edges, values, side="right") - 1
-        idx[values == edges[-1]] = n_bins - 1  # the last bin is closed on the right
-        stats._histograms[i] += np.bincount(idx[(idx >= 0) & (idx < n_bins)], minlength=n_bins)
+class LinEdges:
+    """The bin edges ``np.linspace(lo[i], hi[i], n + 1)`` of each dimension ``i``, by their formula, without making
+    them: ``at(j, i)`` is edge ``j`` of dimension ``i``, the value ``linspace`` gives, bit for bit. ``linspace``
+    computes ``j * step + lo`` in the edges' dtype with ``step = (hi - lo) / n`` (``(j / n) * (hi - lo) + lo``
+    where the step is 0) and sets the last edge to ``hi``; each call of lerobot's is one dimension's, so the branch is
+    the dimension's own (``tests/prl/test_episode_stats.py`` checks ``at`` against ``linspace``)."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, n: int) -> None:
+        self.dtype = np.result_type(lo, hi, 1.0)
+        self.lo, self.hi, self.n = lo.astype(self.dtype), hi.astype(self.dtype), n
+        self.delta = np.subtract(self.hi, self.lo, dtype=self.dtype)
+        self.step = self.delta / n
+        self.flat = self.step == 0
+
+    def at(self, j: np.ndarray) -> np.ndarray:
+        """Edge ``j[..., i]`` of dimension ``i`` (``j``: integers, its last axis the dimensions)."""
+        jf = np.asarray(j).astype(self.dtype)
+        y = np.where(self.flat, (jf / self.n) * self.delta, jf * self.step) + self.lo
+        return np.where(np.asarray(j) == self.n, self.hi, y).astype(self.dtype)
+
+    def row(self, i: int) -> np.ndarray:
+        """All edges of dimension ``i``: lerobot's own call."""
+        return np.linspace(self.lo[i], self.hi[i], self.n + 1)
 
 
-def compute_quantiles(stats: Any) -> list[np.ndarray]:
-    """``RunningQuantileStats._compute_quantiles``: per quantile, one value per dimension.
+def value_bins(batch: np.ndarray, edges: LinEdges, max_steps: int = 4) -> np.ndarray:
+    """(N, D) int64: the histogram bin of each value of ``batch`` (N, D) over ``edges``, ``np.histogram``'s rule
+    (``edges[j] <= v < edges[j + 1]``, the last bin also its right edge); ``n`` (one past the last bin) for a value in
+    none (outside the edges).
 
-    Only the occupied bins are summed (an episode fills a few hundred of the 5,000): the cumulative count up to any
-    bin is the one up to the last occupied bin before it, and the first bin whose cumulative count reaches a
-    positive target is always an occupied one."""
-    hist = np.stack(stats._histograms)
-    edges = np.stack(stats._bin_edges)
-    d, n = hist.shape
-    rows, cols = np.nonzero(hist)  # row-major: each row's occupied bins in order
-    counts = hist[rows, cols]
-    csum = np.cumsum(counts)
-    start = np.searchsorted(rows, np.arange(d))  # first occupied bin of each row in (rows, cols)
-    length = np.bincount(rows, minlength=d)
-    offset = np.where(start > 0, csum[np.maximum(start - 1, 0)], 0.0)
-    cum = csum - offset[rows]  # per row, the cumulative count at each occupied bin (integers in float64: exact)
+    Each value's bin is guessed from its place between the ends and moved until its edges hold it (at most
+    ``max_steps`` moves); a dimension whose values are not all placed so (edges that repeat, where the dtype cannot
+    tell ``hi - lo`` in 5,000 parts apart) is searched in its full edges instead. Where the ends are equal (a
+    constant dimension whose padding the dtype cannot hold), every edge is that value and so is every value: the
+    last bin, as ``np.histogram`` puts a value equal to the last edge."""
+    n = edges.n
+    d = batch.shape[1]
+    lo, hi = edges.lo.astype(np.float64), edges.hi.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        guess = np.floor((batch.astype(np.float64) - lo) / (hi - lo) * n)
+    j = np.clip(np.nan_to_num(guess, nan=0.0), 0, n - 1).astype(np.int64)
+    j[:, edges.delta == 0] = n - 1
+    for _ in range(max_steps):
+        down = (batch < edges.at(j)) & (j > 0)
+        up = (batch >= edges.at(j + 1)) & (j < n - 1)
+        if not (down.any() or up.any()):
+            break
+        j = j - down + up
+    first, last = edges.at(np.zeros(d, np.int64)), edges.at(np.full(d, n))
+    j[(batch < first) | (batch > last)] = n
+    placed = (j == n) | ((edges.at(np.minimum(j, n - 1)) <= batch) & ((batch < edges.at(np.minimum(j + 1, n)))
+                                                                     | (j == n - 1)))
+    for i in np.flatnonzero(~placed.all(axis=0)):
+        row, values = edges.row(int(i)), batch[:, i]
+        idx = np.searchsorted(row, values, side="right") - 1
+        idx[values == row[-1]] = n - 1
+        idx[(idx < 0) | (idx >= n)] = n
+        j[:, i] = idx
+    return j
+
+
+def quantiles(bins: np.ndarray, edges: LinEdges, count: int, quantile_list: list[float]) -> list[np.ndarray]:
+    """lerobot's ``RunningQuantileStats._compute_quantiles`` from each value's bin (``value_bins``) instead of the
+    histograms: per quantile, one value per dimension."""
+    n = edges.n
+    d = bins.shape[1]
+    ordered = np.sort(bins, axis=0)  # the bins of each dimension's counted values first, then the uncounted (n)
+    counted = (ordered < n).sum(axis=0)
+    first, last = edges.at(np.zeros(d, np.int64)), edges.at(np.full(d, n))
     out = []
-    for q in stats._quantile_list:
-        target = q * stats._count
-        below = np.bincount(rows[cum < target], minlength=d)  # occupied bins of each row whose count is short
-        found = below < length
-        at = start + np.minimum(below, np.maximum(length - 1, 0))
-        idx = np.where(found, cols[np.minimum(at, len(cols) - 1)] if len(cols) else 0, n)
-        before = np.where(below > 0, cum[np.maximum(at - 1, 0)] if len(cum) else 0.0, 0.0)
-        before = np.where(found, before, 0.0)
-        safe = np.clip(idx, 1, n - 1)
-        in_bin = hist[np.arange(d), safe] if n > 1 else np.zeros(d)
-        lo, hi = edges[np.arange(d), safe], edges[np.arange(d), safe + 1]
+    for q in quantile_list:
+        target = q * count
+        m = math.ceil(target) if target > 0 else 0  # the first bin whose cumulative count is >= target holds it
+        reached = (m >= 1) & (m <= counted)
+        at = ordered[min(max(m - 1, 0), ordered.shape[0] - 1)] if ordered.shape[0] else np.zeros(d, np.int64)
+        at = np.where(reached, at, np.where(m >= 1, n, 0))  # lerobot's index into the cumulative sums
+        before = (ordered < at[None, :]).sum(axis=0).astype(np.float64)
+        in_bin = (ordered == at[None, :]).sum(axis=0).astype(np.float64)
+        safe = np.clip(at, 0, n - 1)
+        lo, hi = edges.at(safe), edges.at(safe + 1)
         with np.errstate(divide="ignore", invalid="ignore"):
             inner = lo + (target - before) / in_bin * (hi - lo)
-        edge = np.where(idx == 0, edges[:, 0], np.where(idx >= n, edges[:, -1], edges[np.arange(d), safe]))
-        is_edge = (idx == 0) | (idx >= n) | (in_bin == 0)
+        is_edge = (at == 0) | (at >= n) | (in_bin == 0)
+        edge = np.where(at == 0, first, np.where(at >= n, last, lo))
         values = np.where(is_edge, edge, inner)
         # lerobot assembles numpy scalars: float64 as soon as one value is interpolated, else the edges' dtype
         out.append(values.astype(edges.dtype) if is_edge.all() else values.astype(np.float64))
     return out
 
 
-@contextlib.contextmanager
-def fast_episode_stats() -> Iterator[None]:
-    """Within the block, lerobot's ``RunningQuantileStats`` uses ``update_histograms`` and ``compute_quantiles``;
-    its own methods are restored afterwards."""
+def _sparse_class() -> type:
     from lerobot.datasets.compute_stats import RunningQuantileStats  # heavy: lerobot
 
-    saved = RunningQuantileStats._update_histograms, RunningQuantileStats._compute_quantiles
-    RunningQuantileStats._update_histograms = update_histograms
-    RunningQuantileStats._compute_quantiles = compute_quantiles
+    class SparseQuantileStats(RunningQuantileStats):
+        """``RunningQuantileStats`` whose first ``update`` keeps each value's bin (``value_bins``) instead of dense
+        histograms, and whose quantiles come from those bins (``quantiles``)."""
+
+        _bins: np.ndarray | None = None
+        _edges: LinEdges | None = None
+
+        def update(self, batch: np.ndarray) -> None:
+            if self._count != 0:  # a running update: lerobot's, on dense histograms
+                self._densify()
+                super().update(batch)
+                return
+            batch = batch.reshape(-1, batch.shape[-1])
+            batch = batch.astype(np.result_type(batch.dtype, np.float32), copy=False)
+            # lerobot's first update, but for the histograms
+            self._mean = np.mean(batch, axis=0)
+            self._mean_of_squares = np.mean(batch**2, axis=0)
+            self._min = np.min(batch, axis=0)
+            self._max = np.max(batch, axis=0)
+            self._edges = LinEdges(self._min - 1e-10, self._max + 1e-10, self._num_quantile_bins)
+            self._count += batch.shape[0]
+            self._mean += (np.mean(batch, axis=0) - self._mean) * (batch.shape[0] / self._count)
+            self._mean_of_squares += (np.mean(batch**2, axis=0) - self._mean_of_squares) * (batch.shape[0] / self._count)
+            self._bins = value_bins(batch, self._edges)
+
+        def _densify(self) -> None:
+            if self._bins is None:
+                return
+            n = self._num_quantile_bins
+            self._histograms = [np.bincount(b[b < n], minlength=n).astype(np.float64) for b in self._bins.T]
+            self._bin_edges = [self._edges.row(i) for i in range(len(self._histograms))]
+            self._bins = None
+
+        def _compute_quantiles(self) -> list[np.ndarray]:
+            if self._bins is None:
+                return super()._compute_quantiles()
+            return quantiles(self._bins, self._edges, self._count, self._quantile_list)
+
+    return SparseQuantileStats
+
+
+@contextlib.contextmanager
+def fast_episode_stats() -> Iterator[None]:
+    """Within the block, lerobot's ``get_feature_stats`` (and so ``compute_episode_stats``) uses
+    ``SparseQuantileStats``; lerobot's class is restored afterwards."""
+    from lerobot.datasets import compute_stats  # heavy: lerobot
+
+    saved = compute_stats.RunningQuantileStats
+    compute_stats.RunningQuantileStats = _sparse_class()
     try:
         yield
     finally:
-        RunningQuantileStats._update_histograms, RunningQuantileStats._compute_quantiles = saved
+        compute_stats.RunningQuantileStats = saved

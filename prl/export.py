@@ -81,8 +81,9 @@ def export_lerobot(
     the codec in ``meta/info.json``). ``fast_writes`` skips lerobot's per-frame image-embedding
     pass, a no-op without image features that costs ~6 ms a frame, and computes lerobot's
     per-episode statistics in fewer numpy calls (``prl.episode_stats``; see :func:`_quiet_fast_writes`),
-    and writes ``meta/stats.json`` once instead of after every episode, without hashing each episode's
-    table for a fingerprint nothing keeps (:func:`_lean_writes`); the files are the same.
+    writes ``meta/stats.json`` once instead of after every episode, without hashing each episode's
+    table for a fingerprint nothing keeps (:func:`_lean_writes`), and, without video, hands each episode to
+    lerobot whole instead of frame by frame (:func:`_episode_buffer`); the files are the same.
     ``key`` (from :func:`export_key`) is written to ``EXPORT_KEY_FILE`` so that a later identical
     export can be skipped with :func:`reusable_export`.
 
@@ -143,7 +144,7 @@ def export_lerobot(
             else:
                 with _lean_writes() if fast_writes else contextlib.nullcontext():
                     checks, video_seconds = _write(paths, staging, repo_id, fps, per_episode_label, video,
-                                                   render_images)
+                                                   render_images, whole=fast_writes)
             if key is not None:
                 (staging / EXPORT_KEY_FILE).write_text(key + "\n")
             report = validate_lerobot(staging, repo_id, expected=checks, video=video, drop_cache=True)
@@ -222,9 +223,11 @@ def video_encoder(codecs: Sequence[str] = VIDEO_CODECS) -> Any:
 
 
 def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Mapping[Any, Any] | None,
-           video: VideoSpec | None, render_images: RenderImages | None) -> tuple[list[EpisodeCheck], float]:
-    """Write every demo as an episode into ``staging`` (create -> add_frame -> save_episode -> finalize);
-    return the checks of the episodes and the seconds spent rendering pictures."""
+           video: VideoSpec | None, render_images: RenderImages | None,
+           whole: bool = False) -> tuple[list[EpisodeCheck], float]:
+    """Write every demo as an episode into ``staging`` (create -> add_frame -> save_episode -> finalize; with
+    ``whole`` and no video, each episode handed to ``save_episode`` at once, :func:`_episode_buffer`); return the
+    checks of the episodes and the seconds spent rendering pictures."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy (torch, datasets): only when writing
 
     encoder = video_encoder() if video is not None else None
@@ -252,9 +255,12 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Map
                 tv = time.perf_counter()
                 frames.update(_camera_frames(demo, video, render_images, str(path)))
                 video_seconds += time.perf_counter() - tv
-            for i in range(t):
-                ds.add_frame({**{name: a[i] for name, a in frames.items()}, "task": text})
-            ds.save_episode()
+            if whole and video is None:
+                ds.save_episode(episode_data=_episode_buffer(ds, frames, text))
+            else:  # lerobot's streaming encoder is fed frame by frame by add_frame
+                for i in range(t):
+                    ds.add_frame({**{name: a[i] for name, a in frames.items()}, "task": text})
+                ds.save_episode()
             scenes.append({"episode_index": len(scenes), "task": demo.task, "seed": demo.seed,
                            "scene_params": demo.scene_params, "outcome": demo.outcome, "source": str(path),
                            "proposal_logp": demo.proposal_logp, "prior_logp": demo.prior_logp})
@@ -270,12 +276,32 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Map
     return checks, video_seconds
 
 
+def _episode_buffer(ds: Any, frames: dict[str, np.ndarray], text: str) -> dict[str, Any]:
+    """The episode buffer lerobot's ``add_frame`` would gather from ``frames`` (``{feature: (T, ...) array}``), whole:
+    for ``save_episode(episode_data=...)``, lerobot's way in for an episode recorded elsewhere.
+
+    ``add_frame`` validates each frame's features against the dataset's (dtype and shape), appends them to lists and
+    numbers the frames (``frame_index``, ``timestamp = frame_index / fps``); ``save_episode`` stacks the lists. Here
+    the first frame is validated by lerobot's own ``validate_frame`` (every frame of an array has the first's dtype
+    and shape) and the arrays are handed over whole: the same table, without 150 dictionary-building, validating
+    calls an episode (``tests/prl/test_export.py`` compares the files with ``add_frame``'s)."""
+    from lerobot.datasets.feature_utils import validate_frame  # heavy (lerobot): loaded by the writer already
+
+    t = int(frames["stage"].shape[0])
+    validate_frame({**{name: a[0] for name, a in frames.items()}, "task": text}, ds.features)
+    if any(a.shape[0] != t for a in frames.values()):
+        raise ValueError(f"episode features of different lengths: { {n: a.shape[0] for n, a in frames.items()} }")
+    index = np.arange(t)
+    return {**{key: [] for key in ds.features}, **frames, "size": t, "task": [text] * t, "frame_index": index,
+            "timestamp": index / ds.fps, "episode_index": ds.meta.total_episodes}  # save_episode fills index, task_index
+
+
 def _write_part(paths: list[Path], root: Path, repo_id: str, fps: int, labels: Mapping[Any, Any] | None,
                 fast: bool) -> list[EpisodeCheck]:
     """One worker process's part of ``prl.export_merge.write_parallel``: ``paths`` written as a dataset of its own at
     ``root``; returns their checks."""
     with _quiet_fast_writes(fast=fast), _lean_writes() if fast else contextlib.nullcontext():
-        checks, _ = _write(paths, root, repo_id, fps, labels, None, None)
+        checks, _ = _write(paths, root, repo_id, fps, labels, None, None, whole=fast)
     return checks
 
 
