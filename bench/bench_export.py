@@ -2,8 +2,9 @@
 
 Makes ``--demos`` demos of ``--task`` (its expert plan on scenes 0, 1, ...; not timed), or takes the ``ep*.npz`` of
 ``--demo-dir``, then exports them side by side, alternating, ``--rounds`` times: ``fast_writes=False`` (lerobot's
-per-frame image embedding and per-episode statistics); ``fast_writes=True`` with lerobot's statistics code and
-lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed); the same with the
+per-frame image embedding and per-episode statistics, frames added one by one); ``fast_writes=True`` with lerobot's
+statistics code and lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed; each
+episode handed to lerobot whole, ``prl.export._episode_buffer``); the same with the
 statistics by ``prl.episode_stats``; and ``fast_writes=True`` (also ``prl.export._lean_writes``: stats.json once,
 no fingerprint hashing); with ``--workers N`` (N > 1) also ``fast_writes`` in N processes merged by lerobot
 (``export_lerobot(workers=N)``, at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is

@@ -59,7 +59,6 @@ def run_all_trials(cfg: PipelineConfig, code_version: str) -> dict[str, dict[str
     would overwrite each other; else one after another in this process, with them. The outcomes do not depend on
     the number of processes: each pair's scenes and plans come from the run's seed. The processes report to this
     process's Prefect API (``flows.worker_env.worker_env``): without it each started a temporary server of its own."""
-
     jobs = [(name, kind) for name in cfg.tasks for kind in PLAN_KINDS]
     parallel = cfg.workers > 1 and len(jobs) > 1
     runner = ProcessPoolTaskRunner(max_workers=min(cfg.workers, len(jobs))) if parallel else \
