@@ -4,9 +4,9 @@ Every ``save_episode`` of a lerobot 0.6 dataset computes, per feature, min, max,
 (``lerobot.datasets.compute_stats.RunningQuantileStats``, one ``update`` with the episode's frames): per
 dimension, 5,001 bin edges by ``np.linspace`` between the minimum and the maximum (padded by 1e-10), a
 5,000-bin histogram by ``np.histogram``, and each quantile read from a fresh ``np.cumsum`` of that histogram. For
-a demo's 17 features and 150 frames that is about 200 ``linspace`` calls and 5,000 cumulative sums of 5,000 bins
-an episode, most of the export's time (cProfile of 40 hammer demos, 2026-12-02: 0.23 s of a 0.38 s
-``save_episode``).
+a demo's 17 features (about 1,000 dimensions) and 150 frames that is about 1,000 ``linspace`` calls and 5,000
+cumulative sums of 5,000 bins an episode, most of the export's time (cProfile of 40 hammer demos, 2026-12-02:
+0.23 s of a 0.38 s ``save_episode``).
 
 ``fast_episode_stats()`` makes ``get_feature_stats`` use :class:`SparseQuantileStats` for the duration of a block:
 a ``RunningQuantileStats`` whose first ``update`` keeps each value's bin instead of a histogram (an episode's
@@ -14,12 +14,12 @@ a ``RunningQuantileStats`` whose first ``update`` keeps each value's bin instead
 lerobot's bit for bit (``tests/prl/test_episode_stats.py`` compares them on the dtypes and edge cases a dataset
 has):
 
-- the edges: ``np.linspace`` called once for all dimensions whose range is not zero and once for those whose range
-  is zero (linspace's arithmetic is elementwise, but it takes another branch for the whole call when any step is
-  zero, so the two kinds are never mixed);
-- a value's bin: ``np.histogram``'s rule (a bin holds ``edges[j] <= v < edges[j + 1]``, the last one also its right
-  edge), by one ``searchsorted`` per dimension. (A feature holding NaN has NaN edges, and lerobot's histogram of it
-  means nothing; a demo's frames are finite.)
+- the edges (``LinEdges``): never all made; each edge that is read is computed by ``linspace``'s own arithmetic,
+  in the same dtype and order, with the branch ``linspace`` takes for that dimension's call;
+- a value's bin (``value_bins``): ``np.histogram``'s rule (a bin holds ``edges[j] <= v < edges[j + 1]``, the last
+  one also its right edge), guessed from the value's place between the ends and moved until those two edges hold
+  it; a dimension where that does not settle in a few moves is searched in its full edges. (A feature holding NaN
+  has NaN edges, and lerobot's histogram of it means nothing; a demo's frames are finite.)
 - a quantile ``q``: lerobot's first bin whose cumulative count reaches ``target = q * count``. Counts are integers,
   so that is the bin of the ``ceil(target)``-th smallest counted value; the counts before it and in it are
   counted from the sorted bins, and lerobot's interpolation is applied element for element in the same dtypes,
@@ -40,7 +40,7 @@ import numpy as np
 
 class LinEdges:
     """The bin edges ``np.linspace(lo[i], hi[i], n + 1)`` of each dimension ``i``, by their formula, without making
-    them: ``at(j, i)`` is edge ``j`` of dimension ``i``, the value ``linspace`` gives, bit for bit. ``linspace``
+    them: ``at(j)[..., i]`` is edge ``j[..., i]`` of dimension ``i``, the value ``linspace`` gives, bit for bit. ``linspace``
     computes ``j * step + lo`` in the edges' dtype with ``step = (hi - lo) / n`` (``(j / n) * (hi - lo) + lo``
     where the step is 0) and sets the last edge to ``hi``; each call of lerobot's is one dimension's, so the branch is
     the dimension's own (``tests/prl/test_episode_stats.py`` checks ``at`` against ``linspace``)."""
