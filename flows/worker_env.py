@@ -4,7 +4,8 @@ from __future__ import annotations
 
 
 def worker_env() -> dict[str, str]:
-    """Environment for local Dask workers: the Prefect API URL this process uses, Dask's logs at warnings only.
+    """Environment for local worker processes (the synthesis' Dask workers, the plan trials' processes): the Prefect
+    API URL this process uses, Dask's logs at warnings only.
 
     When ``PREFECT_API_URL`` is unset, Prefect's temporary server of this process is started (if it
     is not yet) and its URL is passed on, so workers report to it instead of starting their own.
