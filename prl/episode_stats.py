@@ -145,15 +145,16 @@ def _sparse_class() -> type:
                 return
             batch = batch.reshape(-1, batch.shape[-1])
             batch = batch.astype(np.result_type(batch.dtype, np.float32), copy=False)
-            # lerobot's first update, but for the histograms
-            self._mean = np.mean(batch, axis=0)
-            self._mean_of_squares = np.mean(batch**2, axis=0)
+            # lerobot's first update, but for the histograms; lerobot takes each mean twice (the start, then the
+            # batch's), equal arrays, so each is taken once here and its running step kept (inf - inf is NaN there too)
+            mean, mean_of_squares = np.mean(batch, axis=0), np.mean(batch**2, axis=0)
+            self._mean, self._mean_of_squares = mean.copy(), mean_of_squares.copy()
             self._min = np.min(batch, axis=0)
             self._max = np.max(batch, axis=0)
             self._edges = LinEdges(self._min - 1e-10, self._max + 1e-10, self._num_quantile_bins)
             self._count += batch.shape[0]
-            self._mean += (np.mean(batch, axis=0) - self._mean) * (batch.shape[0] / self._count)
-            self._mean_of_squares += (np.mean(batch**2, axis=0) - self._mean_of_squares) * (batch.shape[0] / self._count)
+            self._mean += (mean - self._mean) * (batch.shape[0] / self._count)
+            self._mean_of_squares += (mean_of_squares - self._mean_of_squares) * (batch.shape[0] / self._count)
             self._bins = value_bins(batch, self._edges)
 
         def _densify(self) -> None:
