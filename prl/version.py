@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import re
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
-from prl.constants import REPO_ROOT
+from prl.constants import REPO_ROOT, TASKS
 
 _SOURCE_DIRS = ("prl", "envs", "assets")
 
@@ -84,20 +86,55 @@ def _task_modules(own: str) -> set[str]:
 def outcome_version(task: str) -> str:
     """A digest (16 hex digits) of the names and bytes of ``outcome_files(task)``: what a committed LN summary of
     ``task`` records as its ``code_version``. A change to the task's physics or success rule, the executor or the
-    LN changes it; a README, docs, tests, flows or another task's module do not."""
-    return source_version(*outcome_files(task))
+    LN changes it; a README, docs, tests, flows, another task's module or another variant's catalogue entry do
+    not (``catalogue_view``)."""
+    return source_version(*outcome_files(task), view=lambda rel, data: catalogue_view(data, task)
+                          if rel == PLB_CATALOGUE else data)
 
 
-def source_version(*relative_paths: str) -> str:
+PLB_CATALOGUE = "assets/plb.yaml"
+"""The PLB catalogue (``prl.plb.DEFAULT_PLB_PATH``), the one asset read per task."""
+
+_CATALOGUE_KEY = re.compile(rb"^  ([A-Za-z0-9_]+):")
+_CATALOGUE_GAP = re.compile(rb"^\s*(#.*)?$")
+
+
+def catalogue_view(data: bytes, task: str) -> bytes:
+    """The catalogue's bytes as ``task``'s outcome reads them: the whole file less the entries of *variants* other
+    than ``task`` (entries under ``tasks:`` whose name is not one of ``prl.constants.TASKS``), each entry with the
+    blank and comment lines right above its name. ``prl.plb`` gives a task its own entry or, for a variant without
+    one, its base task's, so a variant's entry decides no other task's outcome; the base tasks' entries and
+    everything above ``tasks:`` stay in every view. A file with no variant entry is its own view, byte for byte."""
+    lines = data.splitlines(keepends=True)
+    start = next((i + 1 for i, line in enumerate(lines) if line.rstrip() == b"tasks:"), len(lines))
+    keys = [i for i in range(start, len(lines)) if _CATALOGUE_KEY.match(lines[i])]
+    drop: set[int] = set()
+    for n, i in enumerate(keys):
+        name = _CATALOGUE_KEY.match(lines[i]).group(1).decode()
+        if name in TASKS or name == task:
+            continue
+        first = i
+        while first > start and _CATALOGUE_GAP.match(lines[first - 1]) and first - 1 not in drop:
+            first -= 1
+        end = keys[n + 1] if n + 1 < len(keys) else len(lines)
+        while end > i + 1 and _CATALOGUE_GAP.match(lines[end - 1]) and n + 1 < len(keys):
+            end -= 1  # the blank and comment lines above the next entry are that entry's
+        drop.update(range(first, end))
+    return b"".join(line for j, line in enumerate(lines) if j not in drop)
+
+
+def source_version(*relative_paths: str, view: Callable[[str, bytes], bytes] | None = None) -> str:
     """A digest of the named source files (paths relative to the repository root), for caches that depend
-    on those files alone; a missing file raises FileNotFoundError naming it."""
+    on those files alone; ``view(path, bytes)``, when given, is what enters the digest of each file. A missing file
+    raises FileNotFoundError naming it."""
     h = hashlib.sha256()
     for rel in relative_paths:
         path = REPO_ROOT / rel
         if not path.is_file():
             raise FileNotFoundError(f"source file {rel!r} not found under {REPO_ROOT}")
         h.update(rel.encode())
-        h.update(path.read_bytes())
+        data = path.read_bytes()
+        h.update(view(rel, data) if view else data)
     return h.hexdigest()[:16]
 
 

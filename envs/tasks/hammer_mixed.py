@@ -116,6 +116,11 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
     and object meshes are the base task's, rebuilt from the same values (``prl.shapes.scene_meshes``). The
     executor, the RN and the LN do not read the family.
 
+    The variant has a PLB entry of its own (``assets/plb.yaml``): under the hammer's prior, which gives the slanted
+    family's push (arm_linear_x, object Z || T_fv X) 0.05 x 0.10 and the wrist swing 0.55 x 0.50, the successful
+    plans on slanted nails, the RN's target, have a wrist swing as their mode (a few swings drive some slanted
+    nails); its own prior gives the push 0.30 x 0.35 and the swing 0.35 x 0.35 (docs/tasks.md).
+
     **Randomizations:**
     - the family: 0 or 1 with probability 1/2 each, the first value drawn from the scene's seeded generator
     - then the base task's values, in its order (hammer sizes, mass, friction, rack and board placement and yaw)

@@ -336,10 +336,16 @@ def test_rs_dims_constant_matches_catalogue() -> None:
     assert load_plb().sizes == RS_DIMS == (7, 7, 6, 4, 7, 6)
 
 
-def test_a_task_variant_reads_its_tasks_entry() -> None:
+def test_a_task_variant_reads_its_own_entry_or_its_tasks() -> None:
     plb = load_plb()
-    assert plb.task("hammer_mixed") is plb.task("hammer")
+    assert plb.task("sweep_mixed") is plb.task("sweep")
     assert plb.texts("tweeze_wide") == plb.texts("tweeze")
+    # hammer_mixed has an entry of its own: the slanted nails' push (arm_linear_x, object Z || T_fv X) weighs
+    # 0.105 against the wrist swing's 0.1225 (object Z || T_fv Y), where the hammer's prior gives 0.005 and 0.275
+    assert plb.task("hammer_mixed").name == "hammer_mixed" and plb.texts("hammer_mixed") != plb.texts("hammer")
+    for task, push, swing in (("hammer_mixed", 0.30 * 0.35, 0.35 * 0.35), ("hammer", 0.05 * 0.10, 0.55 * 0.50)):
+        motion, axis = plb.prior(task)[4:6]
+        assert (motion[2] * axis[0], motion[0] * axis[1]) == pytest.approx((push, swing))
     for name in ("drill_mixed", "hammer_", "_hammer"):
         with pytest.raises(PLBError, match=f"unknown task {name!r}"):
             plb.task(name)

@@ -89,6 +89,43 @@ def test_a_new_asset_changes_every_task_and_an_unknown_task_is_named(tree: Path)
         outcome_files("../README")
 
 
+CATALOGUE = b"""dimensions:
+  - name: kinematic_motion
+tasks:
+  hammer:
+    prior: [0.5, 0.5]
+
+  sweep:
+    prior: [0.9, 0.1]
+"""
+VARIANT = b"""
+  # the slanted nails' own prior
+  hammer_mixed:
+    prior: [0.3, 0.7]
+"""
+
+
+def test_a_variants_catalogue_entry_changes_its_own_version_only(tree: Path) -> None:
+    """``prl.plb`` gives a variant its own entry when the catalogue has one, else its base task's: a variant's entry
+    decides no other task's outcome, and a catalogue without variant entries enters every version whole."""
+    (tree / "envs/tasks/hammer_mixed.py").write_text("from envs.tasks.hammer import PRLHammerEnv\n")
+    (tree / "assets/plb.yaml").write_bytes(CATALOGUE)
+    before = {**versions(), "hammer_mixed": outcome_version("hammer_mixed")}
+    assert version.catalogue_view(CATALOGUE, "hammer") == CATALOGUE
+    (tree / "assets/plb.yaml").write_bytes(CATALOGUE + VARIANT)
+    assert version.catalogue_view(CATALOGUE + VARIANT, "sweep") == CATALOGUE
+    assert version.catalogue_view(CATALOGUE + VARIANT, "hammer_mixed") == CATALOGUE + VARIANT
+    after = {**versions(), "hammer_mixed": outcome_version("hammer_mixed")}
+    assert after["hammer_mixed"] != before["hammer_mixed"]
+    assert {t: v for t, v in after.items() if t != "hammer_mixed"} == {
+        t: v for t, v in before.items() if t != "hammer_mixed"}
+    # an entry between two others, and a base task's entry, are cut and kept by the same rule
+    middle = CATALOGUE.replace(b"\n  sweep:", VARIANT + b"\n  sweep:")
+    assert version.catalogue_view(middle, "unscrew_mixed") == CATALOGUE
+    (tree / "assets/plb.yaml").write_bytes(CATALOGUE.replace(b"0.9, 0.1", b"0.8, 0.2") + VARIANT)
+    assert all(outcome_version(t) != after[t] for t in ("hammer", "sweep", "hammer_mixed"))
+
+
 def _module_file(name: str) -> str | None:
     """The repository file of a project module name, or None when it is not one."""
     parts = name.split(".")
