@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from prl.constants import REPO_ROOT, TASKS
+from prl.plb import DEFAULT_PLB_PATH
 
 _SOURCE_DIRS = ("prl", "envs", "assets")
 
@@ -92,22 +93,24 @@ def outcome_version(task: str) -> str:
                           if rel == PLB_CATALOGUE else data)
 
 
-PLB_CATALOGUE = "assets/plb.yaml"
-"""The PLB catalogue (``prl.plb.DEFAULT_PLB_PATH``), the one asset read per task."""
+PLB_CATALOGUE = DEFAULT_PLB_PATH.relative_to(REPO_ROOT).as_posix()
+"""The PLB catalogue, relative to the repository root: the one asset read per task."""
 
 _CATALOGUE_KEY = re.compile(rb"^  ([A-Za-z0-9_]+):")
 _CATALOGUE_GAP = re.compile(rb"^\s*(#.*)?$")
+_CATALOGUE_SECTION = re.compile(rb"^[A-Za-z0-9_]+:")
 
 
 def catalogue_view(data: bytes, task: str) -> bytes:
     """The catalogue's bytes as ``task``'s outcome reads them: the whole file less the entries of *variants* other
-    than ``task`` (entries under ``tasks:`` whose name is not one of ``prl.constants.TASKS``), each entry with the
+    than ``task`` (entries of the ``tasks:`` section whose name is not one of ``prl.constants.TASKS``), each with the
     blank and comment lines right above its name. ``prl.plb`` gives a task its own entry or, for a variant without
     one, its base task's, so a variant's entry decides no other task's outcome; the base tasks' entries and
     everything above ``tasks:`` stay in every view. A file with no variant entry is its own view, byte for byte."""
     lines = data.splitlines(keepends=True)
     start = next((i + 1 for i, line in enumerate(lines) if line.rstrip() == b"tasks:"), len(lines))
-    keys = [i for i in range(start, len(lines)) if _CATALOGUE_KEY.match(lines[i])]
+    stop = next((i for i in range(start, len(lines)) if _CATALOGUE_SECTION.match(lines[i])), len(lines))
+    keys = [i for i in range(start, stop) if _CATALOGUE_KEY.match(lines[i])]
     drop: set[int] = set()
     for n, i in enumerate(keys):
         name = _CATALOGUE_KEY.match(lines[i]).group(1).decode()
@@ -116,9 +119,9 @@ def catalogue_view(data: bytes, task: str) -> bytes:
         first = i
         while first > start and _CATALOGUE_GAP.match(lines[first - 1]) and first - 1 not in drop:
             first -= 1
-        end = keys[n + 1] if n + 1 < len(keys) else len(lines)
-        while end > i + 1 and _CATALOGUE_GAP.match(lines[end - 1]) and n + 1 < len(keys):
-            end -= 1  # the blank and comment lines above the next entry are that entry's
+        end = keys[n + 1] if n + 1 < len(keys) else stop
+        while end > i + 1 and _CATALOGUE_GAP.match(lines[end - 1]) and end < len(lines):
+            end -= 1  # the blank and comment lines above the next entry (or section) are its own
         drop.update(range(first, end))
     return b"".join(line for j, line in enumerate(lines) if j not in drop)
 

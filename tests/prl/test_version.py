@@ -122,6 +122,8 @@ def test_a_variants_catalogue_entry_changes_its_own_version_only(tree: Path) -> 
     # an entry between two others, and a base task's entry, are cut and kept by the same rule
     middle = CATALOGUE.replace(b"\n  sweep:", VARIANT + b"\n  sweep:")
     assert version.catalogue_view(middle, "unscrew_mixed") == CATALOGUE
+    after_tasks = b"\nnotes:\n  hammer_mixed: a key of another section, not an entry\n"
+    assert version.catalogue_view(CATALOGUE + VARIANT + after_tasks, "sweep") == CATALOGUE + after_tasks
     (tree / "assets/plb.yaml").write_bytes(CATALOGUE.replace(b"0.9, 0.1", b"0.8, 0.2") + VARIANT)
     assert all(outcome_version(t) != after[t] for t in ("hammer", "sweep", "hammer_mixed"))
 
