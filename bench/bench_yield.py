@@ -31,7 +31,8 @@ def _floats(text: str) -> list[float]:
 
 
 def run_setting(tasks: list[str], demos: int, n_shards: int, out: Path, proposal: str, round_attempts: int,
-                smoothing: float, floor: float, defensive: float, replay: float) -> dict[str, dict]:
+                smoothing: float, floor: float, defensive: float, replay: float,
+                weighted: bool = False) -> dict[str, dict]:
     """Synthesise (or resume, or read) one setting; the record of each task."""
     from bench.bench_proposal import task_record
     from envs.synthesis import run_shard, synthesize_rounds, task_attempts  # heavy: loads the simulator
@@ -40,7 +41,8 @@ def run_setting(tasks: list[str], demos: int, n_shards: int, out: Path, proposal
 
     cfg = make_config("paper", tasks=tasks, demos_per_task=demos, n_shards=n_shards, output_dir=str(out),
                       proposal=proposal, round_attempts=round_attempts, proposal_smoothing=smoothing,
-                      proposal_floor=floor, proposal_defensive=defensive, proposal_replay=replay)
+                      proposal_floor=floor, proposal_defensive=defensive, proposal_replay=replay,
+                      proposal_weighted=weighted)
     where = synthesis_dir(cfg)
     specs = shard_specs(tasks, demos, cfg.seed, n_shards, where, n_frames=cfg.episode_frames)
     synthesize_rounds(specs, cfg.proposal_config(), lambda todo: [run_shard(s, keep_env=True) for s in todo])
@@ -81,21 +83,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floor", type=float, default=0.2)
     parser.add_argument("--defensive", type=float, default=0.2)
     parser.add_argument("--replay", type=_floats, default=[0.0], help="replay shares to compare, comma-separated")
+    parser.add_argument("--weighted", choices=("no", "yes", "both"), default="no",
+                        help="count successes by their importance weights in the update and replays (prl.proposal)")
     parser.add_argument("--prior", action="store_true", help="also the prior-only run")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/bench_yield"))
     parser.add_argument("--markdown", type=Path, default=None, help="also write the table to this file")
     args = parser.parse_args(argv)
     tasks = [t for t in args.tasks.split(",") if t]
-    settings = [("prior", "prior", 0.0)] if args.prior else []
+    settings = [("prior", "prior", 0.0, False)] if args.prior else []
+    weightings = {"no": [False], "yes": [True], "both": [False, True]}[args.weighted]
     settings += [((f"adaptive r{args.round_attempts} s{args.smoothing:g} f{args.floor:g} d{args.defensive:g} "
-                  f"x{x:g}"), "adaptive", x) for x in args.replay]
+                  f"x{x:g}" + (" w" if w else "")), "adaptive", x, w) for x in args.replay for w in weightings]
     results = []
     try:
-        for name, kind, replay in settings:
+        for name, kind, replay, weighted in settings:
             print(f"[bench_yield] {name}", file=sys.stderr, flush=True)
             results.append((name, run_setting(tasks, args.demos, args.n_shards, args.output_dir, kind,
                                               args.round_attempts, args.smoothing, args.floor, args.defensive,
-                                              replay)))
+                                              replay, weighted)))
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

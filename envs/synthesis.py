@@ -65,6 +65,7 @@ from prl.proposal import (
     sample_plan,
 )
 from prl.stages import FAULTS
+from prl.stats import importance_weights
 
 _log = logging.getLogger(__name__)
 
@@ -101,6 +102,9 @@ class ShardSpec:
     probability ``replay`` (``prl.proposal.sample_mixture``)."""
     replay: float = 0.0
     """Share of the adapted draws that replay one of ``replays``."""
+    replay_weights: tuple[float, ...] = ()
+    """One weight per plan of ``replays`` (its importance weight: a weighted proposal) that a replay is chosen in
+    proportion to; empty: uniformly."""
 
     def __post_init__(self) -> None:
         if self.n_success < 0:
@@ -237,6 +241,7 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     prior = plb.prior(spec.task)
     probs = as_probs(spec.proposal) if spec.proposal is not None else prior
     replays = np.asarray(spec.replays, dtype=np.int64).reshape(-1, len(prior))  # once, not per attempt
+    replay_weights = np.asarray(spec.replay_weights, dtype=np.float64) if spec.replay_weights else None
     end = spec.call_end
 
     measure_key = task_class(spec.task).measure_key  # nail descent, cubes in the zone, cap turn
@@ -252,18 +257,18 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 plan = [int(v) for v in demo.plan]
-                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan, replays),
+                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan, replays, replay_weights),
                        "success": True, "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
                     env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)
                 rng = np.random.default_rng(plan_seed)
                 plan = sample_plan(probs, rng) if spec.defensive is None else \
-                    sample_mixture(prior, probs, spec.defensive, rng, replays, spec.replay)
+                    sample_mixture(prior, probs, spec.defensive, rng, replays, spec.replay, replay_weights)
                 texts = plb.texts(spec.task)
                 text = texts[int(rng.integers(len(texts)))]
                 row = {"attempt": attempt, "seed": scene_seed, "plan": [int(v) for v in plan],
-                       **_logps(spec, probs, prior, plan, replays)}
+                       **_logps(spec, probs, prior, plan, replays, replay_weights)}
                 try:
                     result = executor.run(plan, seed=scene_seed)
                     if result.success:
@@ -297,11 +302,12 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
     return replace(shard_result(spec), seconds=time.perf_counter() - t0)
 
 
-def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any, replays: np.ndarray) -> dict[str, Any]:
+def _logps(spec: ShardSpec, probs: Any, prior: Any, plan: Any, replays: np.ndarray,
+           replay_weights: np.ndarray | None) -> dict[str, Any]:
     """The attempt's round and its plan's log-probabilities under the distribution that drew it and the prior
-    (``replays``: ``spec.replays`` as an array)."""
+    (``replays``, ``replay_weights``: ``spec.replays`` and ``spec.replay_weights`` as arrays)."""
     drew = log_prob(probs, plan) if spec.defensive is None else \
-        mixture_log_prob(prior, probs, spec.defensive, plan, replays, spec.replay)
+        mixture_log_prob(prior, probs, spec.defensive, plan, replays, spec.replay, replay_weights)
     return {"round": int(spec.round), "proposal_logp": drew, "prior_logp": log_prob(prior, plan)}
 
 
@@ -328,20 +334,32 @@ def round_specs(specs: Sequence[ShardSpec], cfg: ProposalConfig) -> tuple[int, l
     out = []
     proposals: dict[str, Any] = {}
     replays: dict[str, tuple[tuple[int, ...], ...]] = {}
+    replay_weights: dict[str, tuple[float, ...]] = {}
     for s in todo:
         if len(logs[s.task, s.shard]) >= (r + 1) * cfg.round_attempts:  # ended this round before a kill
             continue
         if s.task not in proposals:
             rows = [row for t in specs if t.task == s.task for row in logs[t.task, t.shard]]  # shard order
-            by_round = [np.array([row["plan"] for row in rows if row["success"]
-                                  and row["attempt"] // cfg.round_attempts == k], dtype=np.int64)
-                        for k in range(r)]
-            proposals[s.task] = round_proposals(plb.prior(s.task), by_round, cfg)[r]
+            won = [[row for row in rows if row["success"] and row["attempt"] // cfg.round_attempts == k]
+                   for k in range(r)]
+            by_round = [np.array([row["plan"] for row in b], dtype=np.int64) for b in won]
+            weights = _success_weights(won) if cfg.weighted else None
+            proposals[s.task] = round_proposals(plb.prior(s.task), by_round, cfg, weights)[r]
             replays[s.task] = tuple(tuple(int(v) for v in p) for b in by_round for p in b) if cfg.replay else ()
+            replay_weights[s.task] = tuple(float(v) for b in weights for v in b) if cfg.replay and weights else ()
         out.append(replace(s, proposal=tuple(tuple(float(v) for v in p) for p in proposals[s.task]), round=r,
                            round_end=(r + 1) * cfg.round_attempts, defensive=cfg.defensive,
-                           replays=replays[s.task], replay=cfg.replay))
+                           replays=replays[s.task], replay=cfg.replay, replay_weights=replay_weights[s.task]))
     return r, longest_first(out, logs)
+
+
+def _success_weights(won: Sequence[Sequence[dict[str, Any]]]) -> list[np.ndarray]:
+    """Per round, the importance weights ``p / m`` of its successful attempts' plans (``prl.stats.importance_weights``
+    over the successes of all rounds together: one common scale, mean 1)."""
+    rows = [row for b in won for row in b]
+    w = importance_weights([row["prior_logp"] for row in rows], [row["proposal_logp"] for row in rows]) \
+        if rows else np.zeros(0)
+    return list(np.split(w, np.cumsum([len(b) for b in won])[:-1])) if won else []
 
 
 def expected_attempts(spec: ShardSpec, attempts: int, successes: int, yield_: float) -> float:

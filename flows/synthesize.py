@@ -211,7 +211,7 @@ def synthesis_dir(cfg: PipelineConfig) -> Path:
     p = cfg.proposal_config()
     how = "prior" if p.kind == "prior" else \
         f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}" + (f"-d{p.defensive:g}" if p.defensive else "") \
-        + (f"-x{p.replay:g}" if p.replay else "")
+        + (f"-x{p.replay:g}" if p.replay else "") + ("-w" if p.weighted else "")
     return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}"
 
 

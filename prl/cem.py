@@ -39,17 +39,22 @@ def elites(plans: np.ndarray, scores: np.ndarray, fraction: float) -> np.ndarray
 
 
 def update(probs: Sequence[np.ndarray], elite_plans: np.ndarray, smoothing: float = 0.7,
-           reference: Sequence[np.ndarray] | None = None, floor: float = 0.0) -> list[np.ndarray]:
-    """One CEM step (the module docstring): the new categorical of each dimension."""
+           reference: Sequence[np.ndarray] | None = None, floor: float = 0.0,
+           weights: Sequence[float] | None = None) -> list[np.ndarray]:
+    """One CEM step (the module docstring): the new categorical of each dimension. ``weights``: one per elite plan
+    (the frequencies are then weighted ones; None counts every plan once)."""
     if not 0.0 <= smoothing <= 1.0:
         raise ValueError(f"smoothing must be in [0, 1], got {smoothing!r}")
     if not 0.0 <= floor < 1.0:
         raise ValueError(f"floor must be in [0, 1), got {floor!r}")
     elite_plans = np.asarray(elite_plans, dtype=np.int64).reshape(-1, len(probs))
+    w = np.ones(len(elite_plans)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (len(elite_plans),) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"need one finite weight >= 0 per elite plan: {len(elite_plans)} plans, weights {w!r}")
     reference = reference if reference is not None else uniform([len(p) for p in probs])
     out = []
     for d, p in enumerate(probs):
-        freq = np.bincount(elite_plans[:, d], minlength=len(p)).astype(float)
+        freq = np.bincount(elite_plans[:, d], weights=w, minlength=len(p)).astype(float)
         freq = freq / freq.sum() if freq.sum() else np.asarray(p, dtype=float)
         new = smoothing * freq + (1.0 - smoothing) * np.asarray(p, dtype=float)
         new = np.maximum(new, floor * np.asarray(reference[d], dtype=float))

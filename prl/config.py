@@ -204,6 +204,9 @@ class PipelineConfig:
     """Share of the adaptive rounds' plans drawn from the prior (every demo's weight is at most 1 / this)."""
     proposal_replay: float = ProposalConfig.replay
     """Share of the adaptive rounds' other plans that replay an earlier round's successful plan (0: none)."""
+    proposal_weighted: bool = ProposalConfig.weighted
+    """Count each success by its importance weight in the adaptive proposal's update and replays (towards the
+    prior's successful plans rather than the most frequent ones: ``prl.proposal``)."""
     workers: int = 2
     """Dask worker processes of the local cluster; also the processes that write the dataset (without video, from
     ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process)."""
@@ -286,7 +289,8 @@ class PipelineConfig:
         """Synthesis's proposal settings (``prl.proposal``)."""
         return ProposalConfig(kind=self.proposal, round_attempts=self.round_attempts,
                               smoothing=self.proposal_smoothing, floor=self.proposal_floor,
-                              defensive=self.proposal_defensive, replay=self.proposal_replay)
+                              defensive=self.proposal_defensive, replay=self.proposal_replay,
+                              weighted=self.proposal_weighted)
 
     def video_spec(self) -> VideoSpec:
         """The dataset video's settings (also when ``video`` is off: they are checked either way)."""

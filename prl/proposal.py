@@ -20,7 +20,23 @@ among them (a plan that succeeded k times is chosen k times as often), else a dr
 
     m = defensive * p + (1 - defensive) * ((1 - replay) * q + replay * s),   s(plan) = (successes of plan) / (successes)
 
-which is still exact to evaluate for any plan, and every weight is still at most ``1 / defensive``. The proposal of
+which is still exact to evaluate for any plan, and every weight is still at most ``1 / defensive``.
+
+Counted as above, the update and the replays follow the successes *of the proposal*, m(plan) P(success | plan):
+each round sharpens the proposal towards the plans that succeed most often (the mode), so its kept plans stand
+for fewer and fewer of the prior's, and the weights that restore the prior spread (an effective sample size of
+60 of 2,000 tweeze demos; docs/speed.md). With ``weighted`` each success counts by its importance weight
+``w = p / m`` (the likelihood-ratio cross-entropy update of rare-event simulation), and the frequencies are taken
+over the successes of every round so far:
+
+    q_d <- smoothing * freq_d(successes of rounds <= r, weighted by w) + (1 - smoothing) * q_d,   floored as above
+    s(plan) = (sum of w over the successes of plan) / (sum of w over all successes)
+
+The weighted successes are a sample of p(plan | success), the distribution a prior-only run keeps, so q moves
+towards that posterior's per-dimension marginals (a fixed point, not a mode) and the replays draw from its
+empirical joint: a plan that succeeds on most scenes is then drawn about as often as the prior's successes hold
+it, which makes the kept plans' weights nearly equal (high effective sample size) while most draws succeed.
+The proposal of
 round r depends only on
 the attempts of rounds < r, which are themselves fixed by the run seed: the result does not depend on the
 number of workers, nor on which shard finished first.
@@ -65,6 +81,9 @@ class ProposalConfig:
     replay: float = 0.0
     """Share of the adapted draws (those not from the prior) that replay the plan of an earlier round's success
     (module docstring); 0 replays nothing and tosses no coin for it."""
+    weighted: bool = False
+    """Count each success by its importance weight in the update (over every round so far) and in the replays
+    (module docstring), moving the proposal towards the prior's p(plan | success) rather than its mode."""
 
     def __post_init__(self) -> None:
         if self.kind not in PROPOSALS:
@@ -79,6 +98,8 @@ class ProposalConfig:
             raise ValueError(f"proposal defensive share must be a number in [0, 1], got {self.defensive!r}")
         if not _number(self.replay) or not 0.0 <= self.replay <= 1.0:
             raise ValueError(f"proposal replay share must be a number in [0, 1], got {self.replay!r}")
+        if not isinstance(self.weighted, bool):
+            raise ValueError(f"proposal weighted must be true or false, got {self.weighted!r}")
 
 
 def _number(value: object) -> bool:
@@ -108,9 +129,11 @@ def sample_plan(probs: Sequence[np.ndarray], rng: np.random.Generator) -> np.nda
 
 
 def sample_mixture(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
-                   rng: np.random.Generator, replays: np.ndarray | None = None, replay: float = 0.0) -> np.ndarray:
+                   rng: np.random.Generator, replays: np.ndarray | None = None, replay: float = 0.0,
+                   replay_weights: np.ndarray | None = None) -> np.ndarray:
     """One plan of the mixture (module docstring): from ``prior`` with probability ``defensive``, else one of
-    ``replays`` (earlier successes' plans, rows) with probability ``replay``, else from ``probs``. When ``probs`` is
+    ``replays`` (earlier successes' plans, rows; chosen uniformly, or in proportion to ``replay_weights``, one per
+    row) with probability ``replay``, else from ``probs``. When ``probs`` is
     the prior and there is nothing to replay (round 0) the plan is drawn as a prior-only run draws it (no coin is
     tossed), so round 0 of an adaptive run attempts the very plans of a prior run; no coin is tossed for a share
     of 0 either."""
@@ -122,8 +145,18 @@ def sample_mixture(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], def
     if defensive > 0.0 and rng.random() < defensive:
         return sample_plan(prior, rng)
     if rng.random() < replay:
-        return replays[int(rng.integers(len(replays)))].copy()
+        if replay_weights is None:
+            return replays[int(rng.integers(len(replays)))].copy()
+        return replays[int(rng.choice(len(replays), p=_shares(replay_weights, len(replays))))].copy()
     return sample_plan(probs, rng)
+
+
+def _shares(weights: np.ndarray | Sequence[float], n: int) -> np.ndarray:
+    """``weights`` (one per replay, finite, >= 0, not all 0) scaled to sum 1."""
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+        raise ValueError(f"need one finite weight >= 0 per replay ({n}), not all 0; got {w!r}")
+    return w / w.sum()
 
 
 def _replays(replays: np.ndarray | Sequence[Sequence[int]] | None, n_dims: int) -> np.ndarray:
@@ -135,9 +168,11 @@ def _same(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> bool:
 
 
 def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], defensive: float,
-                     plan: Sequence[int], replays: np.ndarray | None = None, replay: float = 0.0) -> float:
+                     plan: Sequence[int], replays: np.ndarray | None = None, replay: float = 0.0,
+                     replay_weights: np.ndarray | None = None) -> float:
     """log of ``m(plan)``, the probability that ``sample_mixture`` with the same arguments draws ``plan``:
-    ``defensive * prior + (1 - defensive) * ((1 - replay) * probs + replay * share of plan among replays)``."""
+    ``defensive * prior + (1 - defensive) * ((1 - replay) * probs + replay * share of plan among replays)``
+    (the share of rows equal to ``plan``, or of their ``replay_weights``)."""
     a, b = log_prob(prior, plan), log_prob(probs, plan)
     replays = _replays(replays, len(prior))
     if not (replay > 0.0 and len(replays)):
@@ -146,7 +181,8 @@ def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], d
         if defensive <= 0.0:
             return b
         return float(np.logaddexp(np.log(defensive) + a, np.log1p(-defensive) + b))
-    share = float(np.mean(np.all(replays == np.asarray(plan, dtype=np.int64), axis=1)))
+    same = np.all(replays == np.asarray(plan, dtype=np.int64), axis=1)
+    share = float(np.mean(same)) if replay_weights is None else float(_shares(replay_weights, len(replays))[same].sum())
     terms = [np.log(defensive) + a if defensive > 0.0 else -np.inf]
     if defensive < 1.0:
         terms.append(np.log1p(-defensive) + np.log1p(-replay) + b if replay < 1.0 else -np.inf)
@@ -155,24 +191,36 @@ def mixture_log_prob(prior: Sequence[np.ndarray], probs: Sequence[np.ndarray], d
 
 
 def adapt(current: Sequence[np.ndarray], prior: Sequence[np.ndarray], successes: np.ndarray,
-          cfg: ProposalConfig) -> Probs:
-    """The next round's proposal from this round's (``current``) and its successful plans (module docstring);
-    unchanged when the round had no success or the proposal is the prior."""
+          cfg: ProposalConfig, weights: Sequence[float] | None = None) -> Probs:
+    """The next round's proposal from this round's (``current``) and the successful plans it moves towards
+    (``weights``: one per plan, or None to count each once; module docstring); unchanged when there is no success
+    or the proposal is the prior."""
     successes = np.asarray(successes, dtype=np.int64).reshape(-1, len(prior))
     if cfg.kind == "prior":
         return as_probs(prior)
     if not len(successes):
         return as_probs(current)
-    return tuple(cem.update(list(current), successes, smoothing=cfg.smoothing, reference=list(prior), floor=cfg.floor))
+    return tuple(cem.update(list(current), successes, smoothing=cfg.smoothing, reference=list(prior), floor=cfg.floor,
+                            weights=weights))
 
 
 def round_proposals(prior: Sequence[np.ndarray], successes_by_round: Sequence[np.ndarray],
-                    cfg: ProposalConfig) -> list[Probs]:
-    """The proposal of every round: round 0's is the prior, round r + 1's ``adapt``s round r's on its successes.
-    Returns ``len(successes_by_round) + 1`` proposals (the last for the round about to run)."""
+                    cfg: ProposalConfig, weights_by_round: Sequence[Sequence[float]] | None = None) -> list[Probs]:
+    """The proposal of every round: round 0's is the prior, round r + 1's ``adapt``s round r's on round r's
+    successes, or with ``cfg.weighted`` on the successes of rounds <= r weighted by ``weights_by_round`` (their
+    importance weights, one per plan of ``successes_by_round``). Returns ``len(successes_by_round) + 1`` proposals
+    (the last for the round about to run)."""
+    if cfg.weighted and (weights_by_round is None or len(weights_by_round) != len(successes_by_round)):
+        raise ValueError("a weighted proposal needs the importance weights of every round's successes")
     out = [as_probs(prior)]
-    for plans in successes_by_round:
-        out.append(adapt(out[-1], prior, plans, cfg))
+    for k, plans in enumerate(successes_by_round):
+        if not cfg.weighted:
+            out.append(adapt(out[-1], prior, plans, cfg))
+            continue
+        so_far = np.concatenate([np.asarray(p, dtype=np.int64).reshape(-1, len(prior))
+                                 for p in successes_by_round[:k + 1]])
+        w = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1) for x in weights_by_round[:k + 1]])
+        out.append(adapt(out[-1], prior, so_far, cfg, w) if len(plans) else as_probs(out[-1]))
     return out
 
 

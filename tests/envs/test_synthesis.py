@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from envs.synthesis import ShardSpec, attempt_seeds, read_attempts, resume_attempts, split_successes
@@ -211,12 +212,14 @@ class _Killed(Exception):
 def test_rounds_do_not_depend_on_shard_order_and_resume_after_a_kill_between_rounds(tmp_path: Path) -> None:
     """Two shards in rounds of 2 attempts with the adaptive proposal: running each round's shards in reverse
     order (as Dask workers may) and stopping after the second round then resuming both give the files of a plain
-    run, byte for byte; the proposal moved after round 0 and every attempt logs its round and log-probabilities."""
+    run, byte for byte; the proposal moved after round 0 and every attempt logs its round and log-probabilities.
+    The rounds replay earlier successes chosen by their importance weights (the weighted proposal; the plain one's
+    bytes are the two-process test's)."""
     import envs  # noqa: F401
     from envs.synthesis import run_shard, synthesize_rounds
     from prl.proposal import ProposalConfig
 
-    cfg = ProposalConfig(round_attempts=2)
+    cfg = ProposalConfig(round_attempts=2, replay=0.5, weighted=True)
 
     def specs(out: Path) -> list[ShardSpec]:
         return [ShardSpec("hammer", k, 4, 5, out) for k in range(2)]
@@ -265,17 +268,27 @@ def test_a_round_replays_the_earlier_rounds_successes_of_every_shard(tmp_path: P
 
     plan_a, plan_b, plan_c, other = [0, 3, 2, 0, 0, 1], [1, 3, 2, 0, 0, 1], [0, 1, 2, 0, 0, 1], [0, 0, 0, 0, 0, 0]
     logs = {0: [(plan_a, True), (other, False), (plan_b, True)], 1: [(other, False), (plan_c, True)]}
+    logps = {(0, 0): (-2.0, -3.0), (1, 1): (-4.0, -3.0)}  # (prior, proposal) of A and C: weights e and 1 / e
     specs = [ShardSpec("hammer", k, 5, 0, tmp_path) for k in logs]
     for spec in specs:
         spec.dir.mkdir(parents=True)
-        rows = [{"attempt": j, "seed": j, "plan": plan, "round": j // 2, "success": ok, "measure": 0.0}
+        rows = [{"attempt": j, "seed": j, "plan": plan, "round": j // 2, "success": ok, "measure": 0.0,
+                 "prior_logp": logps.get((spec.shard, j), (-5.0, -5.0))[0],
+                 "proposal_logp": logps.get((spec.shard, j), (-5.0, -5.0))[1]}
                 for j, (plan, ok) in enumerate(logs[spec.shard])]
         (spec.dir / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     r, todo = round_specs(specs, ProposalConfig(round_attempts=2, replay=0.5))
     assert r == 1 and [s.shard for s in todo] == [1, 0]  # shard 1 has two attempts of the round left, shard 0 one
     assert all(s.replays == (tuple(plan_a), tuple(plan_c)) and s.replay == 0.5 for s in todo)
+    assert all(s.replay_weights == () for s in todo)  # unweighted: chosen uniformly
     _, todo = round_specs(specs, ProposalConfig(round_attempts=2))
     assert all(s.replays == () and s.replay == 0.0 for s in todo)
+    # weighted: A and C are chosen in proportion to their importance weights, e : 1 / e (mean 1)
+    _, todo = round_specs(specs, ProposalConfig(round_attempts=2, replay=0.5, weighted=True))
+    e = float(np.e)
+    for s in todo:
+        assert s.replays == (tuple(plan_a), tuple(plan_c))
+        np.testing.assert_allclose(s.replay_weights, [2 * e / (e + 1 / e), 2 / e / (e + 1 / e)])
 
 
 def test_the_progress_tally_reads_only_new_complete_lines(tmp_path: Path) -> None:
