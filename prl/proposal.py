@@ -98,7 +98,7 @@ class ProposalConfig:
             raise ValueError(f"proposal defensive share must be a number in [0, 1], got {self.defensive!r}")
         if not _number(self.replay) or not 0.0 <= self.replay <= 1.0:
             raise ValueError(f"proposal replay share must be a number in [0, 1], got {self.replay!r}")
-        if not isinstance(self.weighted, bool):
+        if self.weighted is not True and self.weighted is not False:
             raise ValueError(f"proposal weighted must be true or false, got {self.weighted!r}")
 
 
@@ -210,7 +210,8 @@ def round_proposals(prior: Sequence[np.ndarray], successes_by_round: Sequence[np
     successes, or with ``cfg.weighted`` on the successes of rounds <= r weighted by ``weights_by_round`` (their
     importance weights, one per plan of ``successes_by_round``). Returns ``len(successes_by_round) + 1`` proposals
     (the last for the round about to run)."""
-    if cfg.weighted and (weights_by_round is None or len(weights_by_round) != len(successes_by_round)):
+    if cfg.weighted and len(successes_by_round) and (weights_by_round is None
+                                                     or len(weights_by_round) != len(successes_by_round)):
         raise ValueError("a weighted proposal needs the importance weights of every round's successes")
     out = [as_probs(prior)]
     for k, plans in enumerate(successes_by_round):

@@ -156,11 +156,11 @@ def _bandit_run(cfg: ProposalConfig, p_success: np.ndarray, rounds: int = 12,
     yield."""
     prior = BANDIT_PRIOR
     rng = np.random.default_rng(1)
-    kept, prior_lp, prop_lp, by_round, w_by_round = [], [], [], [], []
+    kept, prior_lp, prop_lp, by_round = [], [], [], []
     attempts = 0
     for r in range(rounds):
-        weights = [importance_weights(prior_lp, prop_lp)[np.cumsum([0] + [len(b) for b in by_round])[k]:][:len(b)]
-                   for k, b in enumerate(by_round)] if cfg.weighted else None
+        split = np.cumsum([len(b) for b in by_round])[:-1]
+        weights = np.split(importance_weights(prior_lp, prop_lp), split) if cfg.weighted and by_round else None
         q = round_proposals(prior, by_round, cfg, weights)[r]
         replays = np.concatenate(by_round) if by_round else np.zeros((0, 2), np.int64)
         rw = np.concatenate(weights) if weights else None
