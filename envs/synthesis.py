@@ -257,8 +257,9 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
             if attempt not in done and demo_path.exists():  # killed after the demo, before its line
                 demo = load_demo(demo_path)
                 plan = [int(v) for v in demo.plan]
-                row = {"attempt": attempt, "seed": scene_seed, "plan": plan, **_logps(spec, probs, prior, plan, replays, replay_weights),
-                       "success": True, "measure": float(demo.outcome.get(measure_key, float("nan")))}
+                row = {"attempt": attempt, "seed": scene_seed, "plan": plan,
+                       **_logps(spec, probs, prior, plan, replays, replay_weights), "success": True,
+                       "measure": float(demo.outcome.get(measure_key, float("nan")))}
             else:
                 if env is None:
                     env, executor = _environment(spec.task, spec.n_frames, keep_env, cleanup)

@@ -34,12 +34,11 @@ over the successes of every round so far:
 
 The weighted successes are a sample of p(plan | success), the distribution a prior-only run keeps, so q moves
 towards that posterior's per-dimension marginals (a fixed point, not a mode) and the replays draw from its
-empirical joint: a plan that succeeds on most scenes is then drawn about as often as the prior's successes hold
-it, which makes the kept plans' weights nearly equal (high effective sample size) while most draws succeed.
-The proposal of
-round r depends only on
-the attempts of rounds < r, which are themselves fixed by the run seed: the result does not depend on the
-number of workers, nor on which shard finished first.
+empirical joint, which keeps the kept plans' weights evener. Measured (docs/speed.md): on the tweeze 4.5x the
+effective sample size at 1.7x the attempts; on the hammer and the unscrew little change.
+
+The proposal of round r depends only on the attempts of rounds < r, which are themselves fixed by the run seed:
+the result does not depend on the number of workers, nor on which shard finished first.
 
 A plan drawn from m and kept is a sample of m(plan) P(success | plan) (up to a constant); its importance weight
 ``w = p(plan) / m(plan)`` makes the weighted kept plans a sample of p(plan) P(success | plan), the distribution
