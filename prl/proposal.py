@@ -214,13 +214,13 @@ def round_proposals(prior: Sequence[np.ndarray], successes_by_round: Sequence[np
         raise ValueError("a weighted proposal needs the importance weights of every round's successes")
     out = [as_probs(prior)]
     for k, plans in enumerate(successes_by_round):
-        if not cfg.weighted:
+        if cfg.weighted and len(plans):  # a round without success leaves the proposal as it was (``adapt``)
+            so_far = np.concatenate([np.asarray(p, dtype=np.int64).reshape(-1, len(prior))
+                                     for p in successes_by_round[:k + 1]])
+            w = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1) for x in weights_by_round[:k + 1]])
+            out.append(adapt(out[-1], prior, so_far, cfg, w))
+        else:
             out.append(adapt(out[-1], prior, plans, cfg))
-            continue
-        so_far = np.concatenate([np.asarray(p, dtype=np.int64).reshape(-1, len(prior))
-                                 for p in successes_by_round[:k + 1]])
-        w = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1) for x in weights_by_round[:k + 1]])
-        out.append(adapt(out[-1], prior, so_far, cfg, w) if len(plans) else as_probs(out[-1]))
     return out
 
 
