@@ -21,10 +21,17 @@ Reported:
 2. each RN's argmax plan executed on the same unseen scenes (``envs.trials.eval_scene_seeds``), with 95% Wilson
    intervals (the target: the intervals of the weighted and the prior RN overlap);
 3. the RNs' Fig 7 on the common inputs, one row each: ``<markdown stem>_fig7.png`` beside ``--markdown``, else
-   ``<out>/proposal_rn_fig7.png`` (the RNs trained here are saved under ``--out``).
+   ``<out>/proposal_rn_fig7.png`` (the RNs trained here are saved under ``--out``);
+4. with ``--init-seeds K`` (K >= 2), the same bar differences for Fig 7 averaged over K RNs per side, each trained
+   here from its own initialisation (seeds 0..K-1; the adaptive ones with the weights, as the pipeline trains them, and
+   without), and the floor: the prior demos' mean over seeds 0..K-1 against their mean over seeds K..2K-1. One RN's
+   bars move by up to 0.06-0.08 with its initialisation alone (2026-12-05), as much as the target leaves; averaging
+   separates what the data do from what one initialisation does. A fifth row corrects the raw RNs' outputs by
+   ``label_shift`` (each choice scaled by its weighted over raw frequency among the adaptive training demos), a
+   correction the pipeline does not make.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--markdown docs/proposal_rn_hammer.md]``
+[--init-seeds 5] [--markdown docs/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
@@ -54,6 +61,25 @@ def bar_gaps(probs_a: Sequence[np.ndarray], probs_b: Sequence[np.ndarray],
     bars_a = key_dimensions(probs_a, weights=weights_a)
     bars_b = key_dimensions(probs_b, weights=weights_b)
     return [float(np.abs(a.mean_probs - b.mean_probs).max()) for a, b in zip(bars_a, bars_b, strict=True)]
+
+
+def mean_probs(runs: Sequence[Sequence[np.ndarray]]) -> list[np.ndarray]:
+    """Per dimension, the element-wise mean of several RNs' (N, m_i) probabilities on the same N inputs."""
+    return [np.mean([probs[i] for probs in runs], axis=0) for i in range(len(runs[0]))]
+
+
+def label_shift(probs: Sequence[np.ndarray], plans: np.ndarray, weights: np.ndarray) -> list[np.ndarray]:
+    """Per dimension, (N, m_i) probabilities multiplied by each choice's weighted over raw frequency in ``plans``
+    (K, n) with ``weights`` (K,), and renormalised: the label-shift correction of a classifier trained on the raw
+    demos towards their weighted distribution (Saerens et al. 2002). A choice no plan holds keeps its factor 1."""
+    out = []
+    for i, pr in enumerate(probs):
+        m = pr.shape[1]
+        raw = np.bincount(plans[:, i], minlength=m) / len(plans)
+        weighted = np.bincount(plans[:, i], weights=weights, minlength=m) / np.sum(weights)
+        scaled = pr * np.where(raw > 0, weighted / np.maximum(raw, 1e-300), 1.0)
+        out.append(scaled / scaled.sum(axis=1, keepdims=True))
+    return out
 
 
 def intervals_overlap(a: tuple[int, int], b: tuple[int, int]) -> bool:
@@ -102,7 +128,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--val-fraction", type=float, default=defaults.rn_val_fraction)
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_proposal_rn"))
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
+    ap.add_argument("--init-seeds", type=int, default=1,
+                    help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs)")
     args = ap.parse_args(argv)
+    if args.init_seeds < 1:
+        ap.error(f"--init-seeds must be >= 1, got {args.init_seeds}")
 
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed)
@@ -115,10 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     p, a = data["prior"], data["adaptive"]
     args.out.mkdir(parents=True, exist_ok=True)
 
-    def trained_here(d: dict, name: str, init_seed: int) -> Path:
-        """An RN trained here on ``d``'s training demos, unweighted, saved under ``--out``."""
+    def trained_here(d: dict, name: str, init_seed: int, weighted: bool = False) -> Path:
+        """An RN trained here on ``d``'s training demos (with their weights or without), saved under ``--out``."""
         cfg = RNConfig(epochs=args.rn_epochs, seed=init_seed)
-        model, _ = train_rn(d["x"][d["train"]], d["plan"][d["train"]], cfg, d["x"][d["val"]], d["plan"][d["val"]])
+        model, _ = train_rn(d["x"][d["train"]], d["plan"][d["train"]], cfg, d["x"][d["val"]], d["plan"][d["val"]],
+                            progress=False, w_train=d["weights"][d["train"]] if weighted else None)
         return save_rn(model, cfg, FEATURE_LAYOUT, args.out / f"rn-{args.task}-{name}.pt")
 
     paths = {"prior": prior_in[3], "prior, another init seed": trained_here(p, "prior-reseeded", args.seed + 1),
@@ -154,6 +185,24 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {name} | {' '.join(f'{g:.2f}' for g in gap)} (max {max(gap):.2f}) | "
                      f"{' '.join(f'{g:.2f}' for g in gap_own)} (max {max(gap_own):.2f}) | "
                      f"{format_rate(*wins[name])}{overlap} |")
+    if args.init_seeds > 1:
+        k = args.init_seeds
+        sides = {"prior": (p, False, range(k)), "prior, the other K seeds (the floor)": (p, False, range(k, 2 * k)),
+                 "adaptive, weighted": (a, True, range(k)), "adaptive, raw": (a, False, range(k))}
+        each = {name: [predict_proba(load_rn(trained_here(d, f"{name.split(',')[0]}-{'w' if w else 'raw'}-init{s}",
+                                                          s, w)), common) for s in seeds]
+                for name, (d, w, seeds) in sides.items()}
+        means = {name: mean_probs(runs) for name, runs in each.items()}
+        train = a["train"]
+        means["adaptive, raw, label-shift corrected (not in the pipeline)"] = mean_probs(
+            [label_shift(probs, a["plan"][train], a["weights"][train]) for probs in each["adaptive, raw"]])
+        lines += ["", (f"Fig 7 averaged over {k} RNs per side, each trained here from its own initialisation (seeds "
+                       f"0..{k - 1}; the floor's {k}..{2 * k - 1}), on the common inputs:"), "",
+                  f"| mean of {k} RNs | largest bar difference from the prior RNs' mean per dimension ({dims}) |",
+                  "|---|---|"]
+        for name in list(means)[1:]:
+            gap = bar_gaps(means[name], means["prior"])
+            lines.append(f"| {name} | {' '.join(f'{g:.2f}' for g in gap)} (max {max(gap):.2f}) |")
     fig_path = (args.markdown.with_name(f"{args.markdown.stem}_fig7.png") if args.markdown
                 else args.out / "proposal_rn_fig7.png")
     plot_rn_probabilities({f"{args.task}: {name}": pr for name, pr in probs.items()}, plb.dim_names,

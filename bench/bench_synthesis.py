@@ -13,7 +13,9 @@ With several ``--tasks`` (``hammer,sweep``) each task's rounds run on their own 
 as in the pipeline's four-task runs: a task's next round fills the workers while another task's round ends.
 The machine's speed drifts on a shared host (the same 809 hammer attempts took one worker 244 s, then 323 s and 350 s
 two days later): ``--repeats 2`` runs 1, 2, 2, 1 workers and takes the ratio of the sums.
-``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--repeats 1|2] [--no-bare] [--proposal prior|adaptive] [--round-attempts N]``
+``--dask-config both`` sets the local cluster's periodic callbacks at ``flows.synthesize.LOCAL_DASK_CONFIG``'s intervals
+and at distributed's own side by side (ours 1, 2 workers, distributed 2, 1; with ``--repeats 2`` then the reverse).
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--repeats 1|2] [--no-bare] [--proposal prior|adaptive] [--round-attempts N] [--dask-config ours|distributed|both]``
 """
 
 from __future__ import annotations
@@ -22,19 +24,36 @@ import argparse
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from prl.config import ConfigError, check_task_names
 from prl.proposal import PROPOSALS, ProposalConfig
 
+#: distributed's own intervals of the periodic callbacks that ``flows.synthesize.LOCAL_DASK_CONFIG`` slows.
+DISTRIBUTED_INTERVALS: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "20ms",
+    "distributed.admin.system-monitor.interval": "500ms",
+    "distributed.worker.memory.monitor-interval": "100ms",
+}
+
 
 def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out: Path,
-         proposal: ProposalConfig) -> tuple[float, int, int, float]:
-    """Wall seconds, demos, attempts, and the workers' busy seconds (the shard-rounds' calls added up)."""
-    from flows.synthesize import shard_specs, synthesize_timed  # heavy: loads the simulator
+         proposal: ProposalConfig, dask_config: str = "ours") -> tuple[float, int, int, float]:
+    """Wall seconds, demos, attempts, and the workers' busy seconds (the shard-rounds' calls added up), on a local
+    cluster with ``LOCAL_DASK_CONFIG`` ('ours') or distributed's intervals ('distributed')."""
+    from unittest import mock
 
-    specs = shard_specs(tasks, demos, seed, shards, out)
+    import dask
+
+    import flows.synthesize as synth  # heavy: loads the simulator
+
+    config = synth.LOCAL_DASK_CONFIG if dask_config == "ours" else DISTRIBUTED_INTERVALS
+    specs = synth.shard_specs(tasks, demos, seed, shards, out)
     t0 = time.perf_counter()
-    results, timing = synthesize_timed(specs, workers, None, proposal)
+    # make_task_runner sets its config for the rest of the process: the context restores it after the run
+    with dask.config.set(config), mock.patch.object(synth, "LOCAL_DASK_CONFIG", config):
+        results, timing = synth.synthesize_timed(specs, workers, None, proposal)
     wall = time.perf_counter() - t0
     busy = sum(res.seconds for t in timing for res in t["results"])
     return wall, sum(r.successes for r in results), sum(r.attempts for r in results), busy
@@ -65,6 +84,9 @@ def main() -> None:
     parser.add_argument("--round-attempts", type=int, default=ProposalConfig.round_attempts)
     parser.add_argument("--repeats", type=int, default=1,
                         help="run 1, 2, 2, 1 workers (2 repeats: a drift of the machine's speed cancels to first order)")
+    parser.add_argument("--dask-config", default="ours", choices=("ours", "distributed", "both"),
+                        help="the local cluster's periodic callbacks: flows.synthesize.LOCAL_DASK_CONFIG, distributed's "
+                             "own intervals, or both side by side (ours 1, 2, distributed 2, 1 workers, then the reverse)")
     args = parser.parse_args()
     if args.repeats not in (1, 2):
         parser.error(f"--repeats must be 1 or 2, got {args.repeats}")
@@ -74,36 +96,53 @@ def main() -> None:
         check_task_names(tasks)
     except ConfigError as err:
         parser.error(str(err))
-    runs: dict[int, list[tuple[float, int, int, float]]] = {1: [], 2: []}
+    configs = ("ours", "distributed") if args.dask_config == "both" else (args.dask_config,)
+    order = [(c, w) for c in configs for w in ((1, 2) if c == configs[0] else (2, 1))]
+    if len(configs) == 1:
+        order = [(configs[0], w) for w in (1, 2, 2, 1)[: 2 * args.repeats]]
+    elif args.repeats == 2:
+        order = order + order[::-1]
+    runs: dict[tuple[str, int], list[tuple[float, int, int, float]]] = {(c, w): [] for c in configs for w in (1, 2)}
     with tempfile.TemporaryDirectory() as tmp:
-        for i, workers in enumerate((1, 2, 2, 1)[: 2 * args.repeats]):
-            runs[workers].append(_run(workers, tasks, args.demos, args.shards, args.seed, Path(tmp) / f"run{i}",
-                                      proposal))
-        rows = {w: tuple(sum(r[i] for r in rs) for i in range(4)) for w, rs in runs.items()}
+        for i, (config, workers) in enumerate(order):
+            runs[config, workers].append(_run(workers, tasks, args.demos, args.shards, args.seed,
+                                              Path(tmp) / f"run{i}", proposal, config))
         bare = None if args.no_bare else _run_bare(tasks, args.demos, args.shards, args.seed, Path(tmp) / "bare",
                                                    proposal)
     print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
           f"proposal ({args.round_attempts} attempts per shard and round)")
-    print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13} "
-          f"{'busy':>6} {'worker s/attempt':>17}"
-          + ("  (sums of the two runs; each run's wall s: " + ", ".join(
-              f"{w} worker(s) {' and '.join(f'{r[0]:.1f}' for r in rs)}" for w, rs in runs.items()) + ")"
-             if args.repeats == 2 else ""))
-    for workers, (wall, demos, attempts, busy) in rows.items():
-        print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} {60 * attempts / wall:>13.1f} "
-              f"{busy / (workers * wall):>6.1%} {busy / attempts:>17.3f}")
+    walls = {}
+    for config in configs:
+        mine = {w: rs for (c, w), rs in runs.items() if c == config}
+        rows = {w: tuple(sum(r[i] for r in rs) for i in range(4)) for w, rs in mine.items()}
+        walls[config] = rows
+        print(f"\nDask configuration: {config}")
+        print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13} "
+              f"{'busy':>6} {'worker s/attempt':>17}"
+              + ("  (sums of the runs; each run's wall s: " + ", ".join(
+                  f"{w} worker(s) {' and '.join(f'{r[0]:.1f}' for r in rs)}" for w, rs in mine.items()) + ")"
+                 if len(order) > 2 else ""))
+        for workers, (wall, demos, attempts, busy) in rows.items():
+            print(f"{workers:>8} {wall:>8.1f} {demos:>6} {attempts:>9} {60 * demos / wall:>10.2f} "
+                  f"{60 * attempts / wall:>13.1f} {busy / (workers * wall):>6.1%} {busy / attempts:>17.3f}")
+        if bare is not None:
+            for workers, (wall, _, attempts, _) in rows.items():
+                print(f"{workers} worker(s): {workers * wall / attempts / (bare[0] / bare[2]):.2f}x the bare seconds "
+                      f"per attempt")
+        same = len({r[2] for rs in mine.values() for r in rs}) == 1
+        print(f"speed-up with 2 workers: {rows[1][0] / rows[2][0]:.2f}x (same attempts: {same})")
     print("busy: the workers' share of the wall time spent in shard-rounds (the rest: start-up, the end of each round,\n"
           "the flow between rounds); worker s/attempt: their seconds per attempt (up with 2 workers: the cores shared)")
     if bare is not None:
         print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
               f"{60 * bare[2] / bare[0]:>13.1f}")
-        bare_per_attempt = bare[0] / bare[2]
-        for workers, (wall, _, attempts, _) in rows.items():
-            print(f"{workers} worker(s): {workers * wall / attempts / bare_per_attempt:.2f}x the bare seconds per attempt")
-    speedup = rows[1][0] / rows[2][0]
-    print(f"speed-up with 2 workers: {speedup:.2f}x (same attempts: {len({r[2] for rs in runs.values() for r in rs}) == 1})")
+    if len(configs) == 2:
+        for workers in (1, 2):
+            print(f"{workers} worker(s): distributed's intervals / ours, wall time "
+                  f"{walls['distributed'][workers][0] / walls['ours'][workers][0]:.3f}x")
+    rows = walls[configs[0]]
     per_min = 60 * rows[2][1] / rows[2][0]
-    print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers: "
+    print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers ({configs[0]}): "
           f"{2000 * len(tasks) / per_min / 60:.1f} h")
 
 

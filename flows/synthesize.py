@@ -60,6 +60,19 @@ def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int,
             for t in tasks for k, n in enumerate(split_successes(demos_per_task, n_shards)) if n > 0]
 
 
+#: distributed's settings for a local cluster, here and in its workers: no sampling profiler (``make_task_runner``),
+#: and the periodic callbacks of every server (scheduler, nannies, workers) slowed from 20 ms (event-loop health
+#: tick), 500 ms (system monitor, which feeds a dashboard the local cluster does not have) and 100 ms (the memory
+#: monitor's look at each worker's size): an idle 2-worker cluster took 10.7% of a core with distributed's intervals
+#: and 2.2% with these, this process's share 4.1-5.7% against 1.2-1.3% (``bench/bench_dask_idle.py``, 2026-12-05).
+LOCAL_DASK_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "10s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+
+
 def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     """A Dask task runner: the given scheduler, or a local cluster of ``workers`` single-thread processes.
 
@@ -77,11 +90,11 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     (``distributed.core.Server``): a thread sampling every thread's stack every 10 ms, about 4% of a core taken from
     the workers on two cores, for a profile no one can see (the cluster has no dashboard). So a local cluster
     switches it off for the rest of this process (``dask.config``, set here: the cluster starts lazily, at the
-    flow's first submit).
+    flow's first submit). The same goes for distributed's other periodic callbacks (``LOCAL_DASK_CONFIG``).
     """
     if dask_address:
         return DaskTaskRunner(address=dask_address)
-    dask.config.set({"distributed.worker.profile.enabled": False})
+    dask.config.set(LOCAL_DASK_CONFIG)
     # no pages of scheduler and worker start-up chatter: the workers read dask's logging level from the
     # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
     logging.getLogger("distributed").setLevel(logging.WARNING)
@@ -89,7 +102,7 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                           "dashboard_address": None, "env": worker_env(),
                                           "silence_logs": logging.WARNING,
-                                          "config": {"distributed.worker.profile.enabled": False}})
+                                          "config": LOCAL_DASK_CONFIG})
 
 
 class _LogTally:

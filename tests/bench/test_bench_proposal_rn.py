@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.bench_proposal_rn import bar_gaps, intervals_overlap, run_inputs
+from bench.bench_proposal_rn import bar_gaps, intervals_overlap, label_shift, mean_probs, run_inputs
 
 
 def test_bar_gaps_are_the_largest_difference_of_the_mean_probabilities() -> None:
@@ -27,6 +27,23 @@ def test_bar_gaps_weigh_the_first_set() -> None:
 def test_bar_gaps_name_a_dimension_mismatch() -> None:
     with pytest.raises(ValueError, match="2 dimensions against 1"):
         bar_gaps([np.ones((1, 2)) / 2] * 2, [np.ones((1, 2)) / 2])
+
+
+def test_mean_probs_average_each_dimension_over_the_rns() -> None:
+    # two RNs, one input: dimension 0 (0.9, 0.1) and (0.5, 0.5) -> (0.7, 0.3); dimension 1 (1, 0, 0) and (0, 0, 1)
+    runs = [[np.array([[0.9, 0.1]]), np.array([[1.0, 0.0, 0.0]])], [np.array([[0.5, 0.5]]), np.array([[0.0, 0.0, 1.0]])]]
+    got = mean_probs(runs)
+    assert np.allclose(got[0], [[0.7, 0.3]]) and np.allclose(got[1], [[0.5, 0.0, 0.5]])
+
+
+def test_label_shift_scales_each_choice_by_its_weighted_over_raw_share() -> None:
+    # plans choose 0, 0, 1 with weights 1, 1, 2: raw shares (2/3, 1/3), weighted (1/2, 1/2) -> factors (3/4, 3/2);
+    # (0.5, 0.5) -> (0.375, 0.75) / 1.125 = (1/3, 2/3); a third choice no plan holds keeps its factor 1
+    plans = np.array([[0], [0], [1]])
+    got = label_shift([np.array([[0.5, 0.5, 0.0], [0.4, 0.2, 0.4]])], plans, np.array([1.0, 1.0, 2.0]))[0]
+    assert np.allclose(got[0], [1 / 3, 2 / 3, 0.0])
+    # (0.4, 0.2, 0.4) -> (0.3, 0.3, 0.4), already summing to 1
+    assert np.allclose(got[1], [0.3, 0.3, 0.4])
 
 
 def test_intervals_overlap() -> None:

@@ -146,18 +146,19 @@ def _worker_api_url() -> str:
         return str(client.api_url).rstrip("/")
 
 
-def _worker_profiles() -> bool:
-    """Whether this Dask worker runs distributed's sampling profiler (its periodic callbacks)."""
+def _worker_callbacks() -> dict[str, float]:
+    """This Dask worker's periodic callbacks and their intervals in ms."""
     from distributed import get_worker
 
-    return any(name.startswith("profile") for name in get_worker().periodic_callbacks)
+    return {name: float(pc.callback_time) for name, pc in get_worker().periodic_callbacks.items()}
 
 
 @pytest.mark.sim
 def test_local_dask_workers_report_to_this_process_api() -> None:
     """Without PREFECT_API_URL, the workers use this process's temporary server, not servers of their own; and
     they run without distributed's sampling profiler, whose stack trees every scene rebuild's gc.collect() would
-    walk, nor does this process, where the cluster's scheduler and nannies run (``make_task_runner``)."""
+    walk, nor does this process, where the cluster's scheduler and nannies run (``make_task_runner``); their
+    periodic callbacks run at ``LOCAL_DASK_CONFIG``'s intervals, not distributed's 20 ms / 500 ms / 100 ms."""
     import threading
 
     import httpx
@@ -170,19 +171,21 @@ def test_local_dask_workers_report_to_this_process_api() -> None:
         pytest.skip(f"PREFECT_API_URL is set ({PREFECT_API_URL.value()}): no temporary server to share")
     worker_task = task(_worker_api_url, name="worker-api-url")
 
-    profiles_task = task(_worker_profiles, name="worker-profiles")
+    callbacks_task = task(_worker_callbacks, name="worker-callbacks")
 
     @flow(task_runner=make_task_runner(2, None))
-    def probe() -> tuple[list[str], list[bool], list[str]]:
+    def probe() -> tuple[list[str], list[dict[str, float]], list[str]]:
         return ([f.result() for f in [worker_task.submit(), worker_task.submit()]],
-                [f.result() for f in [profiles_task.submit(), profiles_task.submit()]],
+                [f.result() for f in [callbacks_task.submit(), callbacks_task.submit()]],
                 [t.name for t in threading.enumerate()])
 
-    urls, profiles, threads = probe()
+    urls, callbacks, threads = probe()
     assert "Profile" not in threads  # distributed.profile.watch's thread, one per profiled event loop
     here = _worker_api_url()
     assert urls == [here, here]
-    assert profiles == [False, False]
+    for intervals in callbacks:
+        assert not any(name.startswith("profile") for name in intervals)
+        assert (intervals["tick"], intervals["monitor"], intervals["memory_monitor"]) == (1000.0, 10000.0, 1000.0)
     assert here.startswith("http://127.0.0.1:")
     assert httpx.get(here + "/health", timeout=10).status_code == 200
 
