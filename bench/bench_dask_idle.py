@@ -44,7 +44,7 @@ def idle_cpu(config: dict[str, Any], workers: int, seconds: float) -> tuple[floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    from flows.synthesize import LOCAL_DASK_CONFIG
+    from flows.synthesize import LOCAL_DASK_CONFIG  # heavy: prefect, prefect-dask and dask behind it
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=2)
