@@ -97,11 +97,11 @@ def main() -> None:
     except ConfigError as err:
         parser.error(str(err))
     configs = ("ours", "distributed") if args.dask_config == "both" else (args.dask_config,)
-    order = [(c, w) for c in configs for w in ((1, 2) if c == configs[0] else (2, 1))]
     if len(configs) == 1:
         order = [(configs[0], w) for w in (1, 2, 2, 1)[: 2 * args.repeats]]
-    elif args.repeats == 2:
-        order = order + order[::-1]
+    else:
+        order = [("ours", 1), ("ours", 2), ("distributed", 2), ("distributed", 1)]
+        order += order[::-1] if args.repeats == 2 else []
     runs: dict[tuple[str, int], list[tuple[float, int, int, float]]] = {(c, w): [] for c in configs for w in (1, 2)}
     with tempfile.TemporaryDirectory() as tmp:
         for i, (config, workers) in enumerate(order):
