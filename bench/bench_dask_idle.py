@@ -6,7 +6,8 @@ periodic callbacks take comes out of the two workers' simulation. Each measureme
 ``--workers`` workers with one configuration, lets it settle, and reads the CPU time that this process and each worker
 process spend over ``--seconds`` of idling (``psutil``); the two configurations alternate over ``--rounds``:
 
-- ``distributed``: distributed's own intervals, the sampling profiler off (as before 2026-12-05);
+- ``distributed``: distributed's own intervals, the sampling profiler off (as before 2026-12-05;
+  ``bench.bench_synthesis.DISTRIBUTED_INTERVALS``);
 - ``ours``: ``flows.synthesize.LOCAL_DASK_CONFIG``.
 
     python -m bench.bench_dask_idle [--workers 2] [--seconds 30] [--rounds 2]
@@ -44,6 +45,7 @@ def idle_cpu(config: dict[str, Any], workers: int, seconds: float) -> tuple[floa
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bench.bench_synthesis import DISTRIBUTED_INTERVALS
     from flows.synthesize import LOCAL_DASK_CONFIG  # heavy: prefect, prefect-dask and dask behind it
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -55,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--workers and --rounds must be >= 1 and --seconds > 0, got {args.workers!r}, "
                      f"{args.rounds!r} and {args.seconds!r}")
     logging.getLogger("distributed").setLevel(logging.WARNING)
-    configs = {"distributed": {"distributed.worker.profile.enabled": False}, "ours": LOCAL_DASK_CONFIG}
+    configs = {"distributed": DISTRIBUTED_INTERVALS, "ours": LOCAL_DASK_CONFIG}
     sums = {name: [0.0, 0.0] for name in configs}
     print(f"| round | configuration | this process (% of a core) | {args.workers} workers (% of a core) | total |\n"
           "|---|---|---|---|---|")

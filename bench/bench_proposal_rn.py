@@ -187,11 +187,13 @@ def main(argv: list[str] | None = None) -> int:
                      f"{format_rate(*wins[name])}{overlap} |")
     if args.init_seeds > 1:
         k = args.init_seeds
-        sides = {"prior": (p, False, range(k)), "prior, the other K seeds (the floor)": (p, False, range(k, 2 * k)),
-                 "adaptive, weighted": (a, True, range(k)), "adaptive, raw": (a, False, range(k))}
-        each = {name: [predict_proba(load_rn(trained_here(d, f"{name.split(',')[0]}-{'w' if w else 'raw'}-init{s}",
-                                                          s, w)), common) for s in seeds]
-                for name, (d, w, seeds) in sides.items()}
+        # name -> (file stem of its RNs, demos, trained with their weights, init seeds)
+        sides = {"prior": ("prior-raw", p, False, range(k)),
+                 "prior, the other K seeds (the floor)": ("prior-raw", p, False, range(k, 2 * k)),
+                 "adaptive, weighted": ("adaptive-w", a, True, range(k)),
+                 "adaptive, raw": ("adaptive-raw", a, False, range(k))}
+        each = {name: [predict_proba(load_rn(trained_here(d, f"{stem}-init{s}", s, w)), common) for s in seeds]
+                for name, (stem, d, w, seeds) in sides.items()}
         means = {name: mean_probs(runs) for name, runs in each.items()}
         train = a["train"]
         means["adaptive, raw, label-shift corrected (not in the pipeline)"] = mean_probs(
