@@ -14,8 +14,10 @@ as in the pipeline's four-task runs: a task's next round fills the workers while
 The machine's speed drifts on a shared host (the same 809 hammer attempts took one worker 244 s, then 323 s and 350 s
 two days later): ``--repeats 2`` runs 1, 2, 2, 1 workers and takes the ratio of the sums.
 ``--dask-config both`` sets the local cluster's periodic callbacks at ``flows.synthesize.LOCAL_DASK_CONFIG``'s intervals
-and at distributed's own side by side (ours 1, 2 workers, distributed 2, 1; with ``--repeats 2`` then the reverse).
-``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--repeats 1|2] [--no-bare] [--proposal prior|adaptive] [--round-attempts N] [--dask-config ours|distributed|both]``
+and at distributed's own side by side; ``--submit both`` submits the shard-rounds as plain Dask futures (the pipeline's
+``flows.synthesize.submit_shard``) and as Prefect task runs (its path until 2026-12-05) side by side. Either way the
+first variant runs 1, 2 workers, the second 2, 1, and with ``--repeats 2`` then the reverse.
+``python -m bench.bench_synthesis [--demos 8] [--shards 4] [--tasks hammer] [--repeats 1|2] [--no-bare] [--proposal prior|adaptive] [--round-attempts N] [--dask-config ours|distributed|both | --submit dask|prefect|both]``
 """
 
 from __future__ import annotations
@@ -38,10 +40,46 @@ DISTRIBUTED_INTERVALS: dict[str, Any] = {
 }
 
 
+SUBMITS = ("dask", "prefect")
+"""How the shard-rounds reach the workers: plain Dask futures (``flows.synthesize.submit_shard``) or Prefect task runs."""
+
+_SHARD_TASK: list[Any] = []
+
+
+class _TaskRunFuture:
+    """A Prefect task run's future as ``flows.synthesize._synthesize`` reads a Dask future: ``done()`` from the Dask
+    future under it (no API call), ``result()`` the task's return value."""
+
+    def __init__(self, future: Any) -> None:
+        self.future = future
+
+    def done(self) -> bool:
+        return self.future.wrapped_future.done()
+
+    def result(self) -> Any:
+        return self.future.result()
+
+
+def _submit_as_task(client: Any, spec: Any) -> _TaskRunFuture:
+    """``flows.synthesize.synthesize_shard(spec)`` as a Prefect task run on the flow's task runner (the pipeline's
+    path until 2026-12-05)."""
+    from prefect import task
+    from prefect.cache_policies import NO_CACHE
+
+    import flows.synthesize as synth  # heavy: loads the simulator
+
+    if not _SHARD_TASK:
+        _SHARD_TASK.append(task(synth.synthesize_shard, name="synthesize-shard", cache_policy=NO_CACHE,
+                                task_run_name="synthesize-{spec.task}-shard{spec.shard}-round{spec.round}"))
+    return _TaskRunFuture(_SHARD_TASK[0].submit(spec))
+
+
 def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out: Path,
-         proposal: ProposalConfig, dask_config: str = "ours") -> tuple[float, int, int, float]:
+         proposal: ProposalConfig, dask_config: str = "ours", submit: str = "dask") -> tuple[float, int, int, float]:
     """Wall seconds, demos, attempts, and the workers' busy seconds (the shard-rounds' calls added up), on a local
-    cluster with ``LOCAL_DASK_CONFIG`` ('ours') or distributed's intervals ('distributed')."""
+    cluster with ``LOCAL_DASK_CONFIG`` ('ours') or distributed's intervals ('distributed'), the shard-rounds submitted
+    as plain Dask futures ('dask') or Prefect task runs ('prefect')."""
+    import contextlib
     from unittest import mock
 
     import dask
@@ -52,7 +90,8 @@ def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out
     specs = synth.shard_specs(tasks, demos, seed, shards, out)
     t0 = time.perf_counter()
     # make_task_runner sets its config for the rest of the process: the context restores it after the run
-    with dask.config.set(config), mock.patch.object(synth, "LOCAL_DASK_CONFIG", config):
+    with dask.config.set(config), mock.patch.object(synth, "LOCAL_DASK_CONFIG", config), \
+            (mock.patch.object(synth, "submit_shard", _submit_as_task) if submit == "prefect" else contextlib.nullcontext()):
         results, timing = synth.synthesize_timed(specs, workers, None, proposal)
     wall = time.perf_counter() - t0
     busy = sum(res.seconds for t in timing for res in t["results"])
@@ -87,26 +126,38 @@ def main() -> None:
     parser.add_argument("--dask-config", default="ours", choices=("ours", "distributed", "both"),
                         help="the local cluster's periodic callbacks: flows.synthesize.LOCAL_DASK_CONFIG, distributed's "
                              "own intervals, or both side by side (ours 1, 2, distributed 2, 1 workers, then the reverse)")
+    parser.add_argument("--submit", default="dask", choices=(*SUBMITS, "both"),
+                        help="the shard-rounds as plain Dask futures (the pipeline's), Prefect task runs, or both side "
+                             "by side (dask 1, 2, prefect 2, 1 workers, then the reverse)")
     args = parser.parse_args()
     if args.repeats not in (1, 2):
         parser.error(f"--repeats must be 1 or 2, got {args.repeats}")
+    if args.dask_config == "both" and args.submit == "both":
+        parser.error("compare one thing at a time: --dask-config both or --submit both, not both")
     proposal = ProposalConfig(kind=args.proposal, round_attempts=args.round_attempts)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
     try:
         check_task_names(tasks)
     except ConfigError as err:
         parser.error(str(err))
-    configs = ("ours", "distributed") if args.dask_config == "both" else (args.dask_config,)
-    if len(configs) == 1:
-        order = [(configs[0], w) for w in (1, 2, 2, 1)[: 2 * args.repeats]]
+    # each variant: (label, dask config, submit)
+    if args.dask_config == "both":
+        variants = [("ours", "ours", args.submit), ("distributed", "distributed", args.submit)]
+    elif args.submit == "both":
+        variants = [(submit, args.dask_config, submit) for submit in SUBMITS]
     else:
-        order = [("ours", 1), ("ours", 2), ("distributed", 2), ("distributed", 1)]
+        variants = [(f"{args.dask_config}, {args.submit}", args.dask_config, args.submit)]
+    configs = tuple(v[0] for v in variants)
+    if len(variants) == 1:
+        order = [(variants[0], w) for w in (1, 2, 2, 1)[: 2 * args.repeats]]
+    else:
+        order = [(variants[0], 1), (variants[0], 2), (variants[1], 2), (variants[1], 1)]
         order += order[::-1] if args.repeats == 2 else []
     runs: dict[tuple[str, int], list[tuple[float, int, int, float]]] = {(c, w): [] for c in configs for w in (1, 2)}
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (config, workers) in enumerate(order):
-            runs[config, workers].append(_run(workers, tasks, args.demos, args.shards, args.seed,
-                                              Path(tmp) / f"run{i}", proposal, config))
+        for i, ((label, config, submit), workers) in enumerate(order):
+            runs[label, workers].append(_run(workers, tasks, args.demos, args.shards, args.seed,
+                                             Path(tmp) / f"run{i}", proposal, config, submit))
         bare = None if args.no_bare else _run_bare(tasks, args.demos, args.shards, args.seed, Path(tmp) / "bare",
                                                    proposal)
     print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
@@ -116,7 +167,7 @@ def main() -> None:
         mine = {w: rs for (c, w), rs in runs.items() if c == config}
         rows = {w: tuple(sum(r[i] for r in rs) for i in range(4)) for w, rs in mine.items()}
         walls[config] = rows
-        print(f"\nDask configuration: {config}")
+        print(f"\nvariant: {config}")
         print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13} "
               f"{'busy':>6} {'worker s/attempt':>17}"
               + ("  (sums of the runs; each run's wall s: " + ", ".join(
@@ -138,8 +189,8 @@ def main() -> None:
               f"{60 * bare[2] / bare[0]:>13.1f}")
     if len(configs) == 2:
         for workers in (1, 2):
-            print(f"{workers} worker(s): distributed's intervals / ours, wall time "
-                  f"{walls['distributed'][workers][0] / walls['ours'][workers][0]:.3f}x")
+            print(f"{workers} worker(s): {configs[1]} / {configs[0]}, wall time "
+                  f"{walls[configs[1]][workers][0] / walls[configs[0]][workers][0]:.3f}x")
     rows = walls[configs[0]]
     per_min = 60 * rows[2][1] / rows[2][0]
     print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers ({configs[0]}): "

@@ -11,13 +11,15 @@ import json
 import logging
 import os
 import time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import dask
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
+from distributed import Client, Future
+from prefect import flow
+from prefect.context import FlowRunContext
 from prefect_dask import DaskTaskRunner
 from tqdm.auto import tqdm
 
@@ -40,16 +42,25 @@ class Synthesis:
     reports: dict[str, dict[str, float]]
 
 
-@task(name="synthesize-shard", task_run_name="synthesize-{spec.task}-shard{spec.shard}-round{spec.round}",
-      cache_policy=NO_CACHE)
 def synthesize_shard(spec: ShardSpec) -> ShardResult:
-    """Run or resume one shard's round. Not cached by Prefect: the shard's own files are its cache
-    (a finished shard returns at once, a killed one resumes). The worker keeps the task's environment
-    open for its next round."""
+    """Run or resume one shard's round in a Dask worker (a plain Dask call: ``submit_shard`` says why not a
+    Prefect task). The shard's own files are its cache (a finished shard returns at once, a killed one resumes). The
+    worker keeps the task's environment open for its next round."""
     import envs  # noqa: F401  (registers the hand and the tasks in the Dask worker)
     from envs.synthesis import run_shard
 
     return run_shard(spec, keep_env=True)
+
+
+def submit_shard(client: Client, spec: ShardSpec) -> Future:
+    """``synthesize_shard(spec)`` on the flow's Dask cluster, as a plain Dask future (key
+    ``synthesize-<task>-shard<k>-round<r>-<token>``). Not a Prefect task run: the paper profile makes about 1,000
+    to 2,000 shard-rounds, and each task run cost this process about 60 ms of a core to submit (Prefect serialises
+    its settings context with every submission) and Prefect's server about as much to record, taken from the two
+    workers on a 2-core machine, and printed a line per shard-round. The synthesis subflow's per-round record
+    (the ``synthesis-rounds`` table) and progress bar say what those task runs said."""
+    return client.submit(synthesize_shard, spec, pure=False,
+                         key=f"synthesize-{spec.task}-shard{spec.shard}-round{spec.round}-{uuid.uuid4().hex[:8]}")
 
 
 def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int, out_dir: Path,
@@ -149,21 +160,21 @@ def _show(tally: _LogTally, bar: tqdm) -> None:
 @flow(name="prl-synthesize")
 def _synthesize(specs: list[ShardSpec], proposal: ProposalConfig, poll_s: float = 0.2,
                 show_s: float = 2.0) -> tuple[list[ShardResult], list[dict[str, Any]]]:
-    """Each task's rounds (``envs.synthesis.rounds_by_task``) as Dask futures: a round's end is seen within
-    ``poll_s`` (the Dask futures' own state, not ``f.state``: that is an API call per future per poll, and on two
-    cores the server's share of CPU came out of the workers'), the progress bar redrawn every ``show_s``."""
+    """Each task's rounds (``envs.synthesis.rounds_by_task``) as Dask futures on the flow's task runner
+    (``submit_shard``): a round's end is seen within ``poll_s``, the progress bar redrawn every ``show_s``."""
     from envs.synthesis import rounds_by_task  # heavy: loads the simulator
 
+    client = FlowRunContext.get().task_runner.client  # the task runner's cluster: local, or at --dask-address
     timing: list[dict[str, Any]] = []
     tally = _LogTally(specs)
     shown = [0.0]
     with tqdm(total=sum(s.n_success for s in specs), desc="synthesis", unit="demo") as bar:
         def start(todo: list[ShardSpec]) -> tuple[int, float, list]:
-            return todo[0].round, time.perf_counter(), [synthesize_shard.submit(spec) for spec in todo]
+            return todo[0].round, time.perf_counter(), [submit_shard(client, spec) for spec in todo]
 
         def collect(handle: tuple[int, float, list]) -> list[ShardResult] | None:
             r, t0, futures = handle
-            if not all(f.wrapped_future.done() for f in futures):
+            if not all(f.done() for f in futures):
                 return None
             results = [f.result() for f in futures]
             timing.append({"task": results[0].task, "round": r, "wall_s": time.perf_counter() - t0,

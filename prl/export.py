@@ -24,12 +24,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from prl.dataset_files import check_destination, move_into_place, recover_stale, staging_path, tree_size
 from prl.demo import Demo, load_demo
 from prl.episode_stats import fast_episode_stats
 from prl.export_check import EpisodeCheck, validate_lerobot
-from prl.export_merge import export_parts, write_parallel
+from prl.export_merge import export_parts, part_episode_written, write_parallel
 from prl.export_schema import (
     DEFAULT_FPS,
     DEFAULT_REPO_ID,
@@ -142,9 +143,10 @@ def export_lerobot(
                                         repo_id, fps, per_episode_label, fast_writes)
                 video_seconds = 0.0
             else:
-                with _lean_writes() if fast_writes else contextlib.nullcontext():
+                with _lean_writes() if fast_writes else contextlib.nullcontext(), \
+                        tqdm(total=len(paths), desc="export", unit="episode") as bar:
                     checks, video_seconds = _write(paths, staging, repo_id, fps, per_episode_label, video,
-                                                   render_images, whole=fast_writes)
+                                                   render_images, whole=fast_writes, on_episode=bar.update)
             if key is not None:
                 (staging / EXPORT_KEY_FILE).write_text(key + "\n")
             report = validate_lerobot(staging, repo_id, expected=checks, video=video, drop_cache=True)
@@ -223,11 +225,12 @@ def video_encoder(codecs: Sequence[str] = VIDEO_CODECS) -> Any:
 
 
 def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Mapping[Any, Any] | None,
-           video: VideoSpec | None, render_images: RenderImages | None,
-           whole: bool = False) -> tuple[list[EpisodeCheck], float]:
+           video: VideoSpec | None, render_images: RenderImages | None, whole: bool = False,
+           on_episode: Callable[[], Any] = lambda: None) -> tuple[list[EpisodeCheck], float]:
     """Write every demo as an episode into ``staging`` (create -> add_frame -> save_episode -> finalize; with
-    ``whole`` and no video, each episode handed to ``save_episode`` at once, :func:`_episode_buffer`); return the
-    checks of the episodes and the seconds spent rendering pictures."""
+    ``whole`` and no video, each episode handed to ``save_episode`` at once, :func:`_episode_buffer`), calling
+    ``on_episode()`` after each (a progress bar's); return the checks of the episodes and the seconds spent rendering
+    pictures."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy (torch, datasets): only when writing
 
     encoder = video_encoder() if video is not None else None
@@ -269,6 +272,7 @@ def _write(paths: list[Path], staging: Path, repo_id: str, fps: int, labels: Map
                 length=t, task=text, plan=tuple(int(v) for v in frames["plan"][0]),
                 label=tuple(int(v) for v in frames["label"][0]), sample_index=k,
                 sample_state=frames["observation.state"][k].copy(), source=str(path)))
+            on_episode()
     finally:
         ds.finalize()
     with open(staging / SCENES_FILE, "w") as fh:
@@ -301,7 +305,7 @@ def _write_part(paths: list[Path], root: Path, repo_id: str, fps: int, labels: M
     """One worker process's part of ``prl.export_merge.write_parallel``: ``paths`` written as a dataset of its own at
     ``root``; returns their checks."""
     with _quiet_fast_writes(fast=fast), _lean_writes() if fast else contextlib.nullcontext():
-        checks, _ = _write(paths, root, repo_id, fps, labels, None, None, whole=fast)
+        checks, _ = _write(paths, root, repo_id, fps, labels, None, None, whole=fast, on_episode=part_episode_written)
     return checks
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from prl.export_schema import SCENES_FILE
 
@@ -45,19 +46,26 @@ def write_parallel(write_part: Callable[..., list[Any]], parts: Sequence[Sequenc
     episodes' checks returned) under a sibling of ``staging`` (``.<name>.staging-parts-<pid>``, which a later
     export cleans up if this one is killed), then merge them in order into ``staging`` with lerobot's
     ``aggregate_datasets`` (episode, frame and task indices renumbered, statistics aggregated) and the scene
-    records renumbered. Returns the episodes' checks, in order."""
+    records renumbered. A progress bar counts the episodes the parts have written (``part_episode_written``).
+    Returns the episodes' checks, in order."""
     import multiprocessing  # heavy: only for a parallel export
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, wait
 
     from lerobot.datasets.aggregate import aggregate_datasets  # heavy (pandas, lerobot): only when merging
 
     work = staging.parent / staging.name.replace(".staging-", ".staging-parts-")
     shutil.rmtree(work, ignore_errors=True)
     roots = [work / f"part{i}" for i in range(len(parts))]
+    context = multiprocessing.get_context("spawn")
+    written = context.Value("i", 0)
     try:
-        with ProcessPoolExecutor(len(parts), mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(len(parts), mp_context=context, initializer=_count_into, initargs=(written,)) as pool, \
+                tqdm(total=sum(len(p) for p in parts), desc=f"export ({len(parts)} processes)", unit="episode") as bar:
             futures = [pool.submit(write_part, list(part), part_root, repo_id, fps, labels, fast)
                        for part, part_root in zip(parts, roots, strict=True)]
+            while wait(futures, timeout=1.0).not_done:
+                bar.update(written.value - bar.n)
+            bar.update(written.value - bar.n)
             checks = [c for f in futures for c in f.result()]
         with _quiet_aggregate():
             aggregate_datasets([repo_id] * len(roots), repo_id, roots=roots, aggr_root=staging)
@@ -71,6 +79,24 @@ def write_parallel(write_part: Callable[..., list[Any]], parts: Sequence[Sequenc
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return checks
+
+
+_PART_COUNT: Any = None
+"""In a part's process of ``write_parallel``: the count of the episodes the parts have written, shared with the
+process that shows it (a ``multiprocessing.Value``, handed over by the pool's initializer)."""
+
+
+def _count_into(count: Any) -> None:
+    global _PART_COUNT  # the pool's initializer: the one way a spawned process receives a shared Value
+    _PART_COUNT = count
+
+
+def part_episode_written() -> None:
+    """One more episode written by this part's process, for ``write_parallel``'s progress bar (a no-op in any other
+    process)."""
+    if _PART_COUNT is not None:
+        with _PART_COUNT.get_lock():
+            _PART_COUNT.value += 1
 
 
 INDEX_FEATURES: tuple[str, ...] = ("episode_index", "index", "task_index")

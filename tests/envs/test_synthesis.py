@@ -207,6 +207,35 @@ def test_same_seed_gives_identical_bytes_in_two_processes(tmp_path: Path) -> Non
         assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel
 
 
+@pytest.mark.sim
+def test_the_flow_on_two_dask_workers_writes_the_in_process_rounds_files_and_no_task_runs(tmp_path: Path) -> None:
+    """``flows.synthesize.synthesize`` (the subflow, its shard-rounds plain Dask futures on a 2-worker local cluster)
+    writes the demos and attempt logs of the same rounds run in this process, byte for byte, and creates no Prefect
+    task run per shard-round (``submit_shard``: those cost the workers' throughput and a log line each)."""
+    from datetime import UTC, datetime
+
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import TaskRunFilter, TaskRunFilterName, TaskRunFilterStartTime
+
+    import envs  # noqa: F401
+    from envs.synthesis import run_shard, synthesize_rounds
+    from flows.synthesize import shard_specs, synthesize
+    from prl.proposal import ProposalConfig
+
+    cfg = ProposalConfig(round_attempts=2)
+    shard_runs = TaskRunFilter(name=TaskRunFilterName(like_="synthesize-hammer-shard"),
+                               start_time=TaskRunFilterStartTime(after_=datetime.now(UTC)))
+    results = synthesize(shard_specs(["hammer"], 3, 11, 2, tmp_path / "dask"), workers=2, proposal=cfg)
+    synthesize_rounds(shard_specs(["hammer"], 3, 11, 2, tmp_path / "here"), cfg,
+                      lambda todo: [run_shard(s, keep_env=True) for s in todo])
+    assert [(r.shard, r.successes) for r in results] == [(0, 2), (1, 1)]
+    files = {name: {p.relative_to(tmp_path / name): p.read_bytes() for p in (tmp_path / name).rglob("*")
+                    if p.is_file()} for name in ("dask", "here")}
+    assert len(files["dask"]) == 5 and files["dask"] == files["here"]  # 2 attempt logs, 3 demos
+    with get_client(sync_client=True) as client:
+        assert client.read_task_runs(task_run_filter=shard_runs) == []
+
+
 class _Killed(Exception):
     """Stands for a kill between two rounds."""
 

@@ -206,9 +206,11 @@ def test_export_parts_are_contiguous_and_even() -> None:
         export_lerobot([Path("any.npz")], Path("never"), workers=0)
 
 
-def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
     """Two worker processes and lerobot's merge give the same frames, episodes, tasks, scene records and statistics
-    (to float rounding) as one process; nothing of the parts is left beside the dataset."""
+    (to float rounding) as one process; nothing of the parts is left beside the dataset. Each export's progress
+    bar counts its 5 episodes (the parts' count comes from their processes)."""
     import json
 
     import pandas as pd
@@ -224,6 +226,9 @@ def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeyp
     two = export_lerobot(paths, tmp_path / "two", repo_id=REPO_ID, per_episode_label=labels, workers=2)
     assert (two.n_episodes, two.n_frames) == (one.n_episodes, one.n_frames) == (5, 91)
     assert _siblings(two.root) == []
+    bars = [line for line in capsys.readouterr().err.replace("\r", "\n").splitlines() if "episode" in line]
+    assert any(line.startswith("export: 100%") and "5/5" in line for line in bars), bars
+    assert any(line.startswith("export (2 processes): 100%") and "5/5" in line for line in bars), bars
 
     def table(root: Path, pattern: str, key: str) -> pd.DataFrame:
         frames = [pd.read_parquet(f) for f in sorted(root.glob(pattern))]
