@@ -45,7 +45,7 @@ def idle_cpu(config: dict[str, Any], workers: int, seconds: float) -> tuple[floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench.bench_synthesis import DISTRIBUTED_INTERVALS
+    from bench.bench_synthesis import DISTRIBUTED_INTERVALS  # after the sys.path insert when run as a file
     from flows.synthesize import LOCAL_DASK_CONFIG  # heavy: prefect, prefect-dask and dask behind it
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

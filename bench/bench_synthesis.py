@@ -23,6 +23,7 @@ first variant runs 1, 2 workers, the second 2, 1, and with ``--repeats 2`` then 
 from __future__ import annotations
 
 import argparse
+import functools
 import tempfile
 import time
 from pathlib import Path
@@ -43,8 +44,6 @@ DISTRIBUTED_INTERVALS: dict[str, Any] = {
 SUBMITS = ("dask", "prefect")
 """How the shard-rounds reach the workers: plain Dask futures (``flows.synthesize.submit_shard``) or Prefect task runs."""
 
-_SHARD_TASK: list[Any] = []
-
 
 class _TaskRunFuture:
     """A Prefect task run's future as ``flows.synthesize._synthesize`` reads a Dask future: ``done()`` from the Dask
@@ -60,18 +59,23 @@ class _TaskRunFuture:
         return self.future.result()
 
 
-def _submit_as_task(client: Any, spec: Any) -> _TaskRunFuture:
-    """``flows.synthesize.synthesize_shard(spec)`` as a Prefect task run on the flow's task runner (the pipeline's
-    path until 2026-12-05)."""
+@functools.cache
+def _shard_task() -> Any:
+    """``flows.synthesize.synthesize_shard`` as the Prefect task it was until 2026-12-05."""
+    # heavy: prefect, and the simulator behind flows.synthesize
     from prefect import task
     from prefect.cache_policies import NO_CACHE
 
-    import flows.synthesize as synth  # heavy: loads the simulator
+    import flows.synthesize as synth
 
-    if not _SHARD_TASK:
-        _SHARD_TASK.append(task(synth.synthesize_shard, name="synthesize-shard", cache_policy=NO_CACHE,
-                                task_run_name="synthesize-{spec.task}-shard{spec.shard}-round{spec.round}"))
-    return _TaskRunFuture(_SHARD_TASK[0].submit(spec))
+    return task(synth.synthesize_shard, name="synthesize-shard", cache_policy=NO_CACHE,
+                task_run_name="synthesize-{spec.task}-shard{spec.shard}-round{spec.round}")
+
+
+def _submit_as_task(client: Any, spec: Any) -> _TaskRunFuture:
+    """``flows.synthesize.synthesize_shard(spec)`` as a Prefect task run on the flow's task runner (the pipeline's
+    path until 2026-12-05)."""
+    return _TaskRunFuture(_shard_task().submit(spec))
 
 
 def _run(workers: int, tasks: list[str], demos: int, shards: int, seed: int, out: Path,
@@ -147,13 +151,13 @@ def main() -> None:
         variants = [(submit, args.dask_config, submit) for submit in SUBMITS]
     else:
         variants = [(f"{args.dask_config}, {args.submit}", args.dask_config, args.submit)]
-    configs = tuple(v[0] for v in variants)
+    labels = tuple(v[0] for v in variants)
     if len(variants) == 1:
         order = [(variants[0], w) for w in (1, 2, 2, 1)[: 2 * args.repeats]]
     else:
         order = [(variants[0], 1), (variants[0], 2), (variants[1], 2), (variants[1], 1)]
         order += order[::-1] if args.repeats == 2 else []
-    runs: dict[tuple[str, int], list[tuple[float, int, int, float]]] = {(c, w): [] for c in configs for w in (1, 2)}
+    runs: dict[tuple[str, int], list[tuple[float, int, int, float]]] = {(c, w): [] for c in labels for w in (1, 2)}
     with tempfile.TemporaryDirectory() as tmp:
         for i, ((label, config, submit), workers) in enumerate(order):
             runs[label, workers].append(_run(workers, tasks, args.demos, args.shards, args.seed,
@@ -163,11 +167,11 @@ def main() -> None:
     print(f"\n{'+'.join(tasks)} synthesis, {args.demos} demos per task in {args.shards} shards each, run seed {args.seed}, {args.proposal} "
           f"proposal ({args.round_attempts} attempts per shard and round)")
     walls = {}
-    for config in configs:
-        mine = {w: rs for (c, w), rs in runs.items() if c == config}
+    for label in labels:
+        mine = {w: rs for (c, w), rs in runs.items() if c == label}
         rows = {w: tuple(sum(r[i] for r in rs) for i in range(4)) for w, rs in mine.items()}
-        walls[config] = rows
-        print(f"\nvariant: {config}")
+        walls[label] = rows
+        print(f"\nvariant: {label}")
         print(f"{'workers':>8} {'wall s':>8} {'demos':>6} {'attempts':>9} {'demos/min':>10} {'attempts/min':>13} "
               f"{'busy':>6} {'worker s/attempt':>17}"
               + ("  (sums of the runs; each run's wall s: " + ", ".join(
@@ -187,13 +191,13 @@ def main() -> None:
     if bare is not None:
         print(f"{'bare':>8} {bare[0]:>8.1f} {bare[1]:>6} {bare[2]:>9} {60 * bare[1] / bare[0]:>10.2f} "
               f"{60 * bare[2] / bare[0]:>13.1f}")
-    if len(configs) == 2:
+    if len(labels) == 2:
         for workers in (1, 2):
-            print(f"{workers} worker(s): {configs[1]} / {configs[0]}, wall time "
-                  f"{walls[configs[1]][workers][0] / walls[configs[0]][workers][0]:.3f}x")
-    rows = walls[configs[0]]
+            print(f"{workers} worker(s): {labels[1]} / {labels[0]}, wall time "
+                  f"{walls[labels[1]][workers][0] / walls[labels[0]][workers][0]:.3f}x")
+    rows = walls[labels[0]]
     per_min = 60 * rows[2][1] / rows[2][0]
-    print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers ({configs[0]}): "
+    print(f"extrapolated 2,000 demos per task ({'+'.join(tasks)}) at this yield on 2 workers ({labels[0]}): "
           f"{2000 * len(tasks) / per_min / 60:.1f} h")
 
 
