@@ -68,8 +68,10 @@ def main(argv: list[str] | None = None) -> int:
             sums[name][1] += workers
             print(f"| {r} | {name} | {100 * here:.2f} | {100 * workers:.2f} | {100 * (here + workers):.2f} |", flush=True)
     total = {name: sum(v) / args.rounds for name, v in sums.items()}
+    ratio = (f"{total['distributed'] / total['ours']:.1f}x less" if total["ours"] > 0 else
+             "ours too small to measure: run longer (--seconds)")
     print(f"\nmean over rounds: distributed's intervals {100 * total['distributed']:.2f}% of a core, ours "
-          f"{100 * total['ours']:.2f}%: {total['distributed'] / max(total['ours'], 1e-9):.1f}x less")
+          f"{100 * total['ours']:.2f}%: {ratio}")
     return 0
 
 
