@@ -29,9 +29,14 @@ Reported:
    separates what the data do from what one initialisation does. A fifth row corrects the raw RNs' outputs by
    ``label_shift`` (each choice scaled by its weighted over raw frequency among the adaptive training demos), a
    correction the pipeline does not make.
+5. with ``--second-prior-dir D`` (a prior-only run of the same task with another ``--seed``, ``--second-prior-seed``):
+   the floor of two datasets rather than two initialisations. Its pipeline RN gets a row of its own (bars on the
+   common inputs, argmax success), and with ``--init-seeds K`` the mean of K RNs trained here on its demos (seeds
+   0..K-1) another row of the averaged table. Two prior-only datasets of the same size differ by their scenes and
+   by which plans happened to succeed; the adaptive run's gap means little unless it exceeds this one.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--init-seeds 5] [--markdown docs/proposal_rn_hammer.md]``
+[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1] [--markdown docs/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
@@ -129,18 +134,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_proposal_rn"))
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
     ap.add_argument("--init-seeds", type=int, default=1,
-                    help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs)")
+                    help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs, 5K with "
+                         "--second-prior-dir)")
+    ap.add_argument("--second-prior-dir", type=Path,
+                    help="output dir of a second --proposal prior run with another seed: the floor of two datasets")
+    ap.add_argument("--second-prior-seed", type=int, help="that run's --seed (default: --seed + 1)")
     args = ap.parse_args(argv)
     if args.init_seeds < 1:
         ap.error(f"--init-seeds must be >= 1, got {args.init_seeds}")
+    second_seed = args.seed + 1 if args.second_prior_seed is None else args.second_prior_seed
+    if args.second_prior_dir is not None and second_seed == args.seed:
+        ap.error(f"--second-prior-seed must differ from --seed ({args.seed}): the floor compares two datasets")
 
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed)
     adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
+    runs = {"prior": (prior_in, args.seed), "adaptive": (adapt_in, args.seed)}
+    if args.second_prior_dir is not None:
+        runs["second prior"] = (run_inputs(args.second_prior_dir, args.task, second_seed), second_seed)
     data = {}
-    for name, (root, repo, pointnet, rn) in (("prior", prior_in), ("adaptive", adapt_in)):
+    for name, ((root, repo, pointnet, _), salt) in runs.items():
         d = rn_features(root, repo, pointnet, defaults.n_points)
-        d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=args.seed)
+        d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=salt)  # the pipeline's split
         data[name] = d
     p, a = data["prior"], data["adaptive"]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -156,24 +171,35 @@ def main(argv: list[str] | None = None) -> int:
              "adaptive, weighted": adapt_in[3], "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
     pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
                  "adaptive, raw": adapt_in[2]}
+    second = f"prior, another dataset (seed {second_seed})"
+    if args.second_prior_dir is not None:
+        paths[second] = runs["second prior"][0][3]
+        pointnets[second] = runs["second prior"][0][2]
     models = {name: load_rn(path) for name, path in paths.items()}
     common = p["x"][p["val"]]
     probs = {name: predict_proba(m, common) for name, m in models.items()}
-    own = {name: (probs[name], None) if name.startswith("prior") else
-           (predict_proba(m, a["x"][a["val"]]), a["weights"][a["val"]] if name == "adaptive, weighted" else None)
-           for name, m in models.items()}
+    own_val = {"adaptive, weighted": a, "adaptive, raw": a, second: data.get("second prior")}  # else common
+    own = {name: (predict_proba(m, own_val[name]["x"][own_val[name]["val"]]),
+                  a["weights"][a["val"]] if name == "adaptive, weighted" else None)
+           if name in own_val else (probs[name], None) for name, m in models.items()}
     seeds = eval_scene_seeds(args.seed, args.scenes)
     outcomes = {name: rn_outcomes(paths[name], pointnets[name], args.task, seeds, defaults.n_points,
                                   defaults.episode_frames, 1.0, ("rn",))["rn"] for name in models}
     wins = {name: (sum(o.success for o in out), len(out)) for name, out in outcomes.items()}
 
     dims = ", ".join(plb.dim_names)
+    s2 = data.get("second prior")
+    second_line = ([] if s2 is None else
+                   [(f"- second prior run `{args.second_prior_dir}` (seed {second_seed}): {len(s2['x'])} demos, "
+                     f"{len(s2['val'])} held out")])
     lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
              f"(`python -m bench.bench_proposal_rn`)."), "",
              f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
              (f"- adaptive run `{args.adaptive_dir}`: {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
              f"size of their weights {effective_sample_size(a['weights']):.0f}, largest weight "
-             f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"), "",
+             f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"),
+             *second_line,
+             "",
              (f"| RN | largest Fig 7 bar difference from the prior RN per dimension ({dims}), common inputs | "
              f"the same, each run's own held-out demos | argmax plan on {args.scenes} unseen scenes (95% CI) |"),
              "|---|---|---|---|"]
@@ -192,6 +218,9 @@ def main(argv: list[str] | None = None) -> int:
                  "prior, the other K seeds (the floor)": ("prior-raw", p, False, range(k, 2 * k)),
                  "adaptive, weighted": ("adaptive-w", a, True, range(k)),
                  "adaptive, raw": ("adaptive-raw", a, False, range(k))}
+        if args.second_prior_dir is not None:
+            sides[f"{second}, trained here"] = (f"second-prior-seed{second_seed}-raw", data["second prior"], False,
+                                                range(k))
         each = {name: [predict_proba(load_rn(trained_here(d, f"{stem}-init{s}", s, w)), common) for s in seeds]
                 for name, (stem, d, w, seeds) in sides.items()}
         means = {name: mean_probs(runs) for name, runs in each.items()}

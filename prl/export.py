@@ -30,7 +30,7 @@ from prl.dataset_files import check_destination, move_into_place, recover_stale,
 from prl.demo import Demo, load_demo
 from prl.episode_stats import fast_episode_stats
 from prl.export_check import EpisodeCheck, validate_lerobot
-from prl.export_merge import export_parts, part_episode_written, write_parallel
+from prl.export_merge import export_parts, part_episode_written, step, write_parallel
 from prl.export_schema import (
     DEFAULT_FPS,
     DEFAULT_REPO_ID,
@@ -149,7 +149,8 @@ def export_lerobot(
                                                    render_images, whole=fast_writes, on_episode=bar.update)
             if key is not None:
                 (staging / EXPORT_KEY_FILE).write_text(key + "\n")
-            report = validate_lerobot(staging, repo_id, expected=checks, video=video, drop_cache=True)
+            with step(f"export: reloading the {len(checks):,} episodes with LeRobotDataset and checking them"):
+                report = validate_lerobot(staging, repo_id, expected=checks, video=video, drop_cache=True)
         move_into_place(staging, root)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.bench_proposal_rn import bar_gaps, intervals_overlap, label_shift, mean_probs, run_inputs
+from bench.bench_proposal_rn import bar_gaps, intervals_overlap, label_shift, main, mean_probs, run_inputs
 
 
 def test_bar_gaps_are_the_largest_difference_of_the_mean_probabilities() -> None:
@@ -56,3 +56,15 @@ def test_intervals_overlap() -> None:
 def test_run_inputs_name_a_missing_run(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="datasets/hammer-seed0 not found"):
         run_inputs(tmp_path, "hammer", 0)
+
+
+def test_a_second_prior_run_of_the_same_seed_is_refused_before_anything_is_read(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # the same seed would be the same dataset, not a floor of two; the runs named do not exist, so an error about
+    # them would mean the seeds were not checked first
+    argv = ["--prior-dir", str(tmp_path / "p"), "--adaptive-dir", str(tmp_path / "a"), "--task", "hammer",
+            "--seed", "3", "--second-prior-dir", str(tmp_path / "p2"), "--second-prior-seed", "3"]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert "--second-prior-seed must differ from --seed (3)" in capsys.readouterr().err

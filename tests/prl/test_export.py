@@ -210,7 +210,8 @@ def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeyp
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     """Two worker processes and lerobot's merge give the same frames, episodes, tasks, scene records and statistics
     (to float rounding) as one process; nothing of the parts is left beside the dataset. Each export's progress
-    bar counts its 5 episodes (the parts' count comes from their processes)."""
+    bar counts its 5 episodes (the parts' count comes from their processes), and the merge and the reload check say
+    when they start and end."""
     import json
 
     import pandas as pd
@@ -226,9 +227,15 @@ def test_a_parallel_export_holds_what_one_process_writes(tmp_path: Path, monkeyp
     two = export_lerobot(paths, tmp_path / "two", repo_id=REPO_ID, per_episode_label=labels, workers=2)
     assert (two.n_episodes, two.n_frames) == (one.n_episodes, one.n_frames) == (5, 91)
     assert _siblings(two.root) == []
-    bars = [line for line in capsys.readouterr().err.replace("\r", "\n").splitlines() if "episode" in line]
+    err = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    bars = [line for line in err if "episode" in line]
     assert any(line.startswith("export: 100%") and "5/5" in line for line in bars), bars
     assert any(line.startswith("export (2 processes): 100%") and "5/5" in line for line in bars), bars
+    # the steps after the bars say when they start and end: the merge once, the reload check in each export
+    assert sum(line.startswith("export: merging the 2 parts' 5 episodes: done in ") for line in err) == 1, err
+    reloads = "export: reloading the 5 episodes with LeRobotDataset and checking them"
+    assert sum(line == f"{reloads} ..." for line in err) == 2, err
+    assert sum(line.startswith(f"{reloads}: done in ") for line in err) == 2, err
 
     def table(root: Path, pattern: str, key: str) -> pd.DataFrame:
         frames = [pd.read_parquet(f) for f in sorted(root.glob(pattern))]
