@@ -30,10 +30,12 @@ Reported:
    ``label_shift`` (each choice scaled by its weighted over raw frequency among the adaptive training demos), a
    correction the pipeline does not make.
 5. with ``--second-prior-dir D`` (a prior-only run of the same task with another ``--seed``, ``--second-prior-seed``):
-   the floor of two datasets rather than two initialisations. Its pipeline RN gets a row of its own (bars on the
-   common inputs, argmax success), and with ``--init-seeds K`` the mean of K RNs trained here on its demos (seeds
-   0..K-1) another row of the averaged table. Two prior-only datasets of the same size differ by their scenes and
-   by which plans happened to succeed; the adaptive run's gap means little unless it exceeds this one.
+   the floor of two datasets rather than two initialisations. Its demos are encoded with the prior run's PointNet
+   (the pipeline trains a PointNet per seed; only the demos should differ), an RN trained here on them from the prior
+   RN's initialisation gets a row (bars on the common inputs and on its own held-out demos, argmax success), and
+   with ``--init-seeds K`` the mean of K RNs trained here on them (seeds 0..K-1) a row of the averaged table. Two
+   prior-only datasets of the same size differ by their scenes and by which plans happened to succeed; the
+   adaptive run's gap means little unless it exceeds this one.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
 [--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1] [--markdown docs/proposal_rn_hammer.md]``
@@ -93,20 +95,28 @@ def intervals_overlap(a: tuple[int, int], b: tuple[int, int]) -> bool:
     return lo_a <= hi_b and lo_b <= hi_a
 
 
+def dataset_inputs(run_dir: Path, task: str, seed: int, what: str = "") -> tuple[Path, str]:
+    """(dataset root, repo id) of a pipeline run's output directory; FileNotFoundError if the dataset is missing."""
+    repo = f"{task}-seed{seed}"
+    root = run_dir / "datasets" / repo
+    if not root.exists():
+        raise FileNotFoundError(f"{root} not found: is {run_dir} the output of a pipeline run of {task!r} with "
+                                f"{what}--seed {seed}?")
+    return root, f"prl/{repo}"
+
+
 def run_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str, Path, Path]:
     """(dataset root, repo id, PointNet, RN) of a pipeline run's output directory; FileNotFoundError naming what
     is missing."""
-    repo = f"{task}-seed{seed}"
-    root = run_dir / "datasets" / repo
+    root, repo = dataset_inputs(run_dir, task, seed, "--train-rn and ")
     rn = run_dir / "models" / f"rn-seed{seed}.pt"
     pointnets = sorted((run_dir / "models").glob("pointnet-*.pt"))
-    for path in (root, rn):
-        if not path.exists():
-            raise FileNotFoundError(f"{path} not found: is {run_dir} the output of a pipeline run of {task!r} with "
-                                    f"--train-rn and --seed {seed}?")
+    if not rn.exists():
+        raise FileNotFoundError(f"{rn} not found: is {run_dir} the output of a pipeline run of {task!r} with "
+                                f"--train-rn and --seed {seed}?")
     if len(pointnets) != 1:
         raise FileNotFoundError(f"expected one PointNet in {run_dir / 'models'}, found {[p.name for p in pointnets]}")
-    return root, f"prl/{repo}", pointnets[0], rn
+    return root, repo, pointnets[0], rn
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -149,13 +159,15 @@ def main(argv: list[str] | None = None) -> int:
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed)
     adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
-    runs = {"prior": (prior_in, args.seed), "adaptive": (adapt_in, args.seed)}
+    # name -> (dataset root, repo id, the PointNet that encodes it, the run's seed: the salt of the pipeline's split)
+    runs = {"prior": (*prior_in[:3], args.seed), "adaptive": (*adapt_in[:3], args.seed)}
     if args.second_prior_dir is not None:
-        runs["second prior"] = (run_inputs(args.second_prior_dir, args.task, second_seed), second_seed)
+        runs["second prior"] = (*dataset_inputs(args.second_prior_dir, args.task, second_seed), prior_in[2],
+                                second_seed)
     data = {}
-    for name, ((root, repo, pointnet, _), salt) in runs.items():
+    for name, (root, repo, pointnet, salt) in runs.items():
         d = rn_features(root, repo, pointnet, defaults.n_points)
-        d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=salt)  # the pipeline's split
+        d["train"], d["val"] = split_by_seed(d["seeds"], args.val_fraction, salt=salt)
         data[name] = d
     p, a = data["prior"], data["adaptive"]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -171,10 +183,10 @@ def main(argv: list[str] | None = None) -> int:
              "adaptive, weighted": adapt_in[3], "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
     pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
                  "adaptive, raw": adapt_in[2]}
-    second = f"prior, another dataset (seed {second_seed})"
+    second = f"prior, another dataset (seed {second_seed}), trained here"
     if args.second_prior_dir is not None:
-        paths[second] = runs["second prior"][0][3]
-        pointnets[second] = runs["second prior"][0][2]
+        paths[second] = trained_here(data["second prior"], f"second-prior-seed{second_seed}", args.seed)
+        pointnets[second] = prior_in[2]
     models = {name: load_rn(path) for name, path in paths.items()}
     common = p["x"][p["val"]]
     probs = {name: predict_proba(m, common) for name, m in models.items()}
@@ -219,8 +231,7 @@ def main(argv: list[str] | None = None) -> int:
                  "adaptive, weighted": ("adaptive-w", a, True, range(k)),
                  "adaptive, raw": ("adaptive-raw", a, False, range(k))}
         if args.second_prior_dir is not None:
-            sides[f"{second}, trained here"] = (f"second-prior-seed{second_seed}-raw", data["second prior"], False,
-                                                range(k))
+            sides[second] = (f"second-prior-seed{second_seed}-raw", data["second prior"], False, range(k))
         each = {name: [predict_proba(load_rn(trained_here(d, f"{stem}-init{s}", s, w)), common) for s in seeds]
                 for name, (stem, d, w, seeds) in sides.items()}
         means = {name: mean_probs(runs) for name, runs in each.items()}
