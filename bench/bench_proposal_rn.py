@@ -95,20 +95,20 @@ def intervals_overlap(a: tuple[int, int], b: tuple[int, int]) -> bool:
     return lo_a <= hi_b and lo_b <= hi_a
 
 
-def dataset_inputs(run_dir: Path, task: str, seed: int, what: str = "") -> tuple[Path, str]:
+def dataset_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str]:
     """(dataset root, repo id) of a pipeline run's output directory; FileNotFoundError if the dataset is missing."""
     repo = f"{task}-seed{seed}"
     root = run_dir / "datasets" / repo
     if not root.exists():
         raise FileNotFoundError(f"{root} not found: is {run_dir} the output of a pipeline run of {task!r} with "
-                                f"{what}--seed {seed}?")
+                                f"--seed {seed}?")
     return root, f"prl/{repo}"
 
 
 def run_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str, Path, Path]:
     """(dataset root, repo id, PointNet, RN) of a pipeline run's output directory; FileNotFoundError naming what
     is missing."""
-    root, repo = dataset_inputs(run_dir, task, seed, "--train-rn and ")
+    root, repo = dataset_inputs(run_dir, task, seed)
     rn = run_dir / "models" / f"rn-seed{seed}.pt"
     pointnets = sorted((run_dir / "models").glob("pointnet-*.pt"))
     if not rn.exists():
@@ -183,14 +183,15 @@ def main(argv: list[str] | None = None) -> int:
              "adaptive, weighted": adapt_in[3], "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
     pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
                  "adaptive, raw": adapt_in[2]}
+    own_val = {"adaptive, weighted": a, "adaptive, raw": a}  # the RNs scored on their own held-out demos too
     second = f"prior, another dataset (seed {second_seed}), trained here"
     if args.second_prior_dir is not None:
         paths[second] = trained_here(data["second prior"], f"second-prior-seed{second_seed}", args.seed)
         pointnets[second] = prior_in[2]
+        own_val[second] = data["second prior"]
     models = {name: load_rn(path) for name, path in paths.items()}
     common = p["x"][p["val"]]
     probs = {name: predict_proba(m, common) for name, m in models.items()}
-    own_val = {"adaptive, weighted": a, "adaptive, raw": a, second: data.get("second prior")}  # else common
     own = {name: (predict_proba(m, own_val[name]["x"][own_val[name]["val"]]),
                   a["weights"][a["val"]] if name == "adaptive, weighted" else None)
            if name in own_val else (probs[name], None) for name, m in models.items()}
