@@ -184,7 +184,8 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
 
     from bench.bench_export import _same, dataset_files
 
-    patched = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint
+    patched = (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint,
+               datasets.arrow_dataset.Dataset.__dict__["from_dict"])
     labels = {1: [0, 1, 2, 3, 4, 5]}
     slow = export_lerobot(synthetic_paths, tmp_path / "slow", repo_id=REPO_ID, per_episode_label=labels,
                           fast_writes=False)
@@ -192,7 +193,33 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
     want, got = dataset_files(slow.root), dataset_files(fast.root)
     assert "meta/stats.json" in got and sorted(got) == sorted(want)
     assert [k for k in want if not _same(want[k], got[k])] == []
-    assert (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint) == patched
+    assert (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint,
+            datasets.arrow_dataset.Dataset.__dict__["from_dict"]) == patched
+
+
+@pytest.mark.filterwarnings("ignore:Conversion of an array with ndim > 0:DeprecationWarning")  # datasets' own path
+def test_arrow_columns_give_datasets_own_table() -> None:
+    """Numeric numpy columns handed to ``Dataset.from_dict`` as Arrow arrays give the table of its own per-row
+    encoding: float64 rounded to float32, a (T, 1) column as T numbers; strings pass through; a wrong width is an
+    error naming the column."""
+    import datasets
+
+    from prl.export import arrow_columns
+
+    features = datasets.Features({"x": datasets.List(datasets.Value("float32"), length=2),
+                                  "stage": datasets.Value("int64"), "t": datasets.Value("float32"),
+                                  "task": datasets.Value("string")})
+    mapping = {"x": np.array([[0.1, 0.2], [0.3, 1 / 3]]), "stage": np.array([[3], [4]]),
+               "t": np.array([0.0, 1 / 30]), "task": ["a", "b"]}
+    columns = arrow_columns(mapping, features)
+    assert columns["task"] is mapping["task"]
+    assert columns["x"].type.list_size == 2 and columns["stage"].to_pylist() == [3, 4]
+    want = datasets.Dataset.from_dict(mapping, features=features).with_format("arrow")[:]
+    got = datasets.Dataset.from_dict(columns, features=features).with_format("arrow")[:]
+    assert got.equals(want, check_metadata=True)
+    assert got.column("x").to_pylist()[1] == [np.float32(0.3), np.float32(1 / 3)]
+    with pytest.raises(ValueError, match="column 'x': values of shape \\(2, 3\\)"):
+        arrow_columns({"x": np.zeros((2, 3))}, features)
 
 
 def test_export_parts_are_contiguous_and_even() -> None:
