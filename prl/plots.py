@@ -5,6 +5,7 @@ pyplot, so nothing stays open in a global registry), which the flows log with ``
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -96,7 +97,7 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
                     spine.set_edgecolor("tab:red")
                     spine.set_linewidth(1.5)
             if c == 0:
-                ax.set_ylabel(f"{task}\nmean prob.", fontsize=8)
+                ax.set_ylabel(f"{textwrap.fill(task, 26)}\nmean prob.", fontsize=8)  # long labels kept in the row
     fig.suptitle(f"RN predicted probabilities per choice (key: top mean prob. > {tau:g}/m, dashed)", fontsize=9)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
