@@ -29,16 +29,16 @@ Reported:
    separates what the data do from what one initialisation does. A fifth row corrects the raw RNs' outputs by
    ``label_shift`` (each choice scaled by its weighted over raw frequency among the adaptive training demos), a
    correction the pipeline does not make.
-5. with ``--second-prior-dir D`` (a prior-only run of the same task with another ``--seed``, ``--second-prior-seed``):
-   the floor of two datasets rather than two initialisations. Its demos are encoded with the prior run's PointNet
-   (the pipeline trains a PointNet per seed; only the demos should differ), an RN trained here on them from the prior
-   RN's initialisation gets a row (bars on the common inputs and on its own held-out demos, argmax success), and
-   with ``--init-seeds K`` the mean of K RNs trained here on them (seeds 0..K-1) a row of the averaged table. Two
-   prior-only datasets of the same size differ by their scenes and by which plans happened to succeed; the
-   adaptive run's gap means little unless it exceeds this one.
+5. with ``--second-prior-dir D`` (a prior-only run of the same task with another ``--seed``, ``--second-prior-seed``;
+   both may be repeated, one pair per run): the floor of two datasets rather than two initialisations. Each such
+   run's demos are encoded with the prior run's PointNet (the pipeline trains a PointNet per seed; only the demos
+   should differ), an RN trained here on them from the prior RN's initialisation gets a row (bars on the common
+   inputs and on its own held-out demos, argmax success), and with ``--init-seeds K`` the mean of K RNs trained here
+   on them (seeds 0..K-1) a row of the averaged table. Two prior-only datasets of the same size differ by their
+   scenes and by which plans happened to succeed; the adaptive run's gap means little unless it exceeds theirs.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1] [--markdown docs/proposal_rn_hammer.md]``
+[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--markdown docs/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
@@ -144,26 +144,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_proposal_rn"))
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
     ap.add_argument("--init-seeds", type=int, default=1,
-                    help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs, 5K with "
+                    help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs, K more per "
                          "--second-prior-dir)")
-    ap.add_argument("--second-prior-dir", type=Path,
-                    help="output dir of a second --proposal prior run with another seed: the floor of two datasets")
-    ap.add_argument("--second-prior-seed", type=int, help="that run's --seed (default: --seed + 1)")
+    ap.add_argument("--second-prior-dir", type=Path, action="append", default=[],
+                    help="output dir of another --proposal prior run with another seed: the floor of two datasets "
+                         "(repeat for several runs)")
+    ap.add_argument("--second-prior-seed", type=int, action="append", default=[],
+                    help="that run's --seed, one per --second-prior-dir (default: --seed + 1, + 2, ...)")
     args = ap.parse_args(argv)
     if args.init_seeds < 1:
         ap.error(f"--init-seeds must be >= 1, got {args.init_seeds}")
-    second_seed = args.seed + 1 if args.second_prior_seed is None else args.second_prior_seed
-    if args.second_prior_dir is not None and second_seed == args.seed:
+    second_seeds = args.second_prior_seed or [args.seed + 1 + i for i in range(len(args.second_prior_dir))]
+    if len(second_seeds) != len(args.second_prior_dir):
+        ap.error(f"{len(second_seeds)} --second-prior-seed for {len(args.second_prior_dir)} --second-prior-dir")
+    if args.seed in second_seeds:
         ap.error(f"--second-prior-seed must differ from --seed ({args.seed}): the floor compares two datasets")
+    if len(set(second_seeds)) < len(second_seeds):
+        ap.error(f"--second-prior-seed {second_seeds}: each run's seed once")
+    seconds = {f"prior, another dataset (seed {s}), trained here": (d, s)
+               for d, s in zip(args.second_prior_dir, second_seeds, strict=True)}
 
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed)
     adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
     # name -> (dataset root, repo id, the PointNet that encodes it, the run's seed: the salt of the pipeline's split)
     runs = {"prior": (*prior_in[:3], args.seed), "adaptive": (*adapt_in[:3], args.seed)}
-    if args.second_prior_dir is not None:
-        runs["second prior"] = (*dataset_inputs(args.second_prior_dir, args.task, second_seed), prior_in[2],
-                                second_seed)
+    for second, (directory, s) in seconds.items():
+        runs[second] = (*dataset_inputs(directory, args.task, s), prior_in[2], s)
     data = {}
     for name, (root, repo, pointnet, salt) in runs.items():
         d = rn_features(root, repo, pointnet, defaults.n_points)
@@ -184,11 +191,10 @@ def main(argv: list[str] | None = None) -> int:
     pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
                  "adaptive, raw": adapt_in[2]}
     own_val = {"adaptive, weighted": a, "adaptive, raw": a}  # the RNs scored on their own held-out demos too
-    second = f"prior, another dataset (seed {second_seed}), trained here"
-    if args.second_prior_dir is not None:
-        paths[second] = trained_here(data["second prior"], f"second-prior-seed{second_seed}", args.seed)
+    for second, (_, s) in seconds.items():
+        paths[second] = trained_here(data[second], f"second-prior-seed{s}", args.seed)
         pointnets[second] = prior_in[2]
-        own_val[second] = data["second prior"]
+        own_val[second] = data[second]
     models = {name: load_rn(path) for name, path in paths.items()}
     common = p["x"][p["val"]]
     probs = {name: predict_proba(m, common) for name, m in models.items()}
@@ -201,17 +207,15 @@ def main(argv: list[str] | None = None) -> int:
     wins = {name: (sum(o.success for o in out), len(out)) for name, out in outcomes.items()}
 
     dims = ", ".join(plb.dim_names)
-    s2 = data.get("second prior")
-    second_line = ([] if s2 is None else
-                   [(f"- second prior run `{args.second_prior_dir}` (seed {second_seed}): {len(s2['x'])} demos, "
-                     f"{len(s2['val'])} held out")])
+    second_lines = [f"- another prior run `{directory}` (seed {s}): {len(data[second]['x'])} demos, "
+                    f"{len(data[second]['val'])} held out" for second, (directory, s) in seconds.items()]
     lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
              f"(`python -m bench.bench_proposal_rn`)."), "",
              f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
              (f"- adaptive run `{args.adaptive_dir}`: {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
              f"size of their weights {effective_sample_size(a['weights']):.0f}, largest weight "
              f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"),
-             *second_line,
+             *second_lines,
              "",
              (f"| RN | largest Fig 7 bar difference from the prior RN per dimension ({dims}), common inputs | "
              f"the same, each run's own held-out demos | argmax plan on {args.scenes} unseen scenes (95% CI) |"),
@@ -231,8 +235,8 @@ def main(argv: list[str] | None = None) -> int:
                  "prior, the other K seeds (the floor)": ("prior-raw", p, False, range(k, 2 * k)),
                  "adaptive, weighted": ("adaptive-w", a, True, range(k)),
                  "adaptive, raw": ("adaptive-raw", a, False, range(k))}
-        if args.second_prior_dir is not None:
-            sides[second] = (f"second-prior-seed{second_seed}-raw", data["second prior"], False, range(k))
+        for second, (_, s) in seconds.items():
+            sides[second] = (f"second-prior-seed{s}-raw", data[second], False, range(k))
         each = {name: [predict_proba(load_rn(trained_here(d, f"{stem}-init{s}", s, w)), common) for s in seeds]
                 for name, (stem, d, w, seeds) in sides.items()}
         means = {name: mean_probs(runs) for name, runs in each.items()}

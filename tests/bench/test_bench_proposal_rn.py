@@ -68,3 +68,19 @@ def test_a_second_prior_run_of_the_same_seed_is_refused_before_anything_is_read(
         main(argv)
     assert exc.value.code == 2
     assert "--second-prior-seed must differ from --seed (3)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("seeds", "message"), [
+    (["4", "4"], "--second-prior-seed [4, 4]: each run's seed once"),
+    (["4"], "1 --second-prior-seed for 2 --second-prior-dir"),
+])
+def test_several_other_prior_runs_need_one_seed_each(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     seeds: list[str], message: str) -> None:
+    argv = ["--prior-dir", str(tmp_path / "p"), "--adaptive-dir", str(tmp_path / "a"), "--task", "hammer",
+            "--second-prior-dir", str(tmp_path / "p2"), "--second-prior-dir", str(tmp_path / "p3")]
+    for s in seeds:
+        argv += ["--second-prior-seed", s]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
