@@ -6,7 +6,7 @@ per-frame image embedding and per-episode statistics, frames added one by one); 
 statistics code and lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed; each
 episode handed to lerobot whole, ``prl.export._episode_buffer``); the same with the
 statistics by ``prl.episode_stats``; and ``fast_writes=True`` (also ``prl.export._lean_writes``: stats.json once,
-no fingerprint hashing); with ``--workers N`` (N > 1) also ``fast_writes`` in N processes merged by lerobot
+no fingerprint hashing, the numeric columns handed to ``datasets`` as Arrow arrays); with ``--workers N`` (N > 1) also ``fast_writes`` in N processes merged by lerobot
 (``export_lerobot(workers=N)``, at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is
 the real one
 (``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
@@ -111,8 +111,8 @@ def main() -> None:
             if args.only_workers:
                 return
         print(f"ratios: lerobot's writes / fast_writes {med[modes[0]] / med[modes[3]]:.2f}x; each change, the mode "
-              f"before / the mode with it: prl statistics {med[modes[1]] / med[modes[2]]:.2f}x, stats.json once and no "
-              f"fingerprint {med[modes[2]] / med[modes[3]]:.2f}x")
+              f"before / the mode with it: prl statistics {med[modes[1]] / med[modes[2]]:.2f}x, stats.json once, no "
+              f"fingerprint, Arrow columns {med[modes[2]] / med[modes[3]]:.2f}x")
         for mode in modes[1:]:
             differ = sorted(k for k in files[modes[0]].keys() | files[mode].keys()
                             if not _same(files[modes[0]].get(k), files[mode].get(k)))
