@@ -6,9 +6,9 @@ per-frame image embedding and per-episode statistics, frames added one by one); 
 statistics code and lerobot's per-episode stats.json and fingerprint (no embedding: there is no image to embed; each
 episode handed to lerobot whole, ``prl.export._episode_buffer``); the same with the
 statistics by ``prl.episode_stats``; and ``fast_writes=True`` (also ``prl.export._lean_writes``: stats.json once,
-no fingerprint hashing, the numeric columns handed to ``datasets`` as Arrow arrays); with ``--workers N`` (N > 1) also ``fast_writes`` in N processes merged by lerobot
-(``export_lerobot(workers=N)``, at least ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is
-the real one
+no fingerprint hashing, the numeric columns handed to ``datasets`` as Arrow arrays); with ``--workers N`` (N > 1)
+also ``fast_writes`` in N processes merged by lerobot (``export_lerobot(workers=N)``, at least
+``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is the real one
 (``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
 whether the datasets hold the same files as lerobot's writes: the same bytes, and for the parquet files the same
 table and metadata but for the fingerprint that ``datasets.map`` stamps (lerobot's embedding pass is one).

@@ -351,8 +351,8 @@ def _lean_writes() -> Iterator[None]:
     from datasets.fingerprint import generate_random_fingerprint
     from lerobot.datasets import dataset_metadata  # heavy: only to patch it for the block
 
-    dataset = datasets.arrow_dataset.Dataset
-    saved = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, dataset.__dict__["from_dict"]
+    table_class = datasets.arrow_dataset.Dataset
+    saved = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, table_class.__dict__["from_dict"]
     last: list[tuple[Any, Any]] = []
 
     def keep_last(stats: Any, root: Any) -> None:
@@ -364,11 +364,11 @@ def _lean_writes() -> Iterator[None]:
 
     dataset_metadata.write_stats = keep_last
     datasets.arrow_dataset.generate_fingerprint = lambda dataset: generate_random_fingerprint()
-    dataset.from_dict = classmethod(from_arrow_columns)
+    table_class.from_dict = classmethod(from_arrow_columns)
     try:
         yield
     finally:
-        dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, dataset.from_dict = saved
+        dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, table_class.from_dict = saved
     for stats, root in last:  # reached only when the block ended without an error
         saved[0](stats, root)
 

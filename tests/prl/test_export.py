@@ -177,8 +177,8 @@ def test_synthetic_round_trip_and_stale_staging_cleanup(tmp_path: Path, syntheti
 
 def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[Path]) -> None:
     """``fast_writes`` (no embedding pass, prl's statistics, stats.json once, no fingerprint hashing, Arrow columns)
-    writes the files lerobot's own writes do: the same bytes, and the same tables and parquet metadata (lerobot's embedding pass
-    stamps a fingerprint the fast path does not); and lerobot's functions are back afterwards."""
+    writes the files lerobot's own writes do: the same bytes, and the same tables and parquet metadata (lerobot's
+    embedding pass stamps a fingerprint the fast path does not); and lerobot's functions are back afterwards."""
     import datasets.arrow_dataset
     from lerobot.datasets import dataset_metadata
 
