@@ -75,6 +75,26 @@ def mean_probs(runs: Sequence[Sequence[np.ndarray]]) -> list[np.ndarray]:
     return [np.mean([probs[i] for probs in runs], axis=0) for i in range(len(runs[0]))]
 
 
+def pairwise_gaps(means: dict[str, Sequence[np.ndarray]], priors: dict[str, str], other: str, k: int) -> list[str]:
+    """Report lines: the largest bar difference over all dimensions between the mean bars (of ``k`` RNs each) of every
+    prior-only dataset (``priors``: column label -> key of ``means``) and of ``other``, each against each prior-only
+    one. Any one prior-only run is a sample too; the spread among them is the floor ``other`` is judged against."""
+    labels = list(priors)
+    gap = {(a, b): max(bar_gaps(means[a], means[priors[b]])) for a in [*priors.values(), other] for b in labels}
+    lines = [(f"The largest bar difference (any dimension) between the means of {k} RNs of each dataset, against "
+              f"each prior-only dataset:"), "", f"| mean of {k} RNs | {' | '.join(labels)} |",
+             f"|---|{'---|' * len(labels)}"]
+    for row, key in [*priors.items(), (other, other)]:
+        lines.append(f"| {row} | " + " | ".join("-" if priors.get(row) == priors[b] else f"{gap[key, b]:.2f}"
+                                                  for b in labels) + " |")
+    among = [gap[priors[a], b] for i, a in enumerate(labels) for b in labels[i + 1:]]
+    to_other = [gap[other, b] for b in labels]
+    lines += ["", (f"Between prior-only datasets: {min(among):.2f}-{max(among):.2f} (median "
+                   f"{float(np.median(among)):.2f}, {len(among)} pairs); {other} against them: "
+                   f"{min(to_other):.2f}-{max(to_other):.2f} (median {float(np.median(to_other)):.2f}).")]
+    return lines
+
+
 def label_shift(probs: Sequence[np.ndarray], plans: np.ndarray, weights: np.ndarray) -> list[np.ndarray]:
     """Per dimension, (N, m_i) probabilities multiplied by each choice's weighted over raw frequency in ``plans``
     (K, n) with ``weights`` (K,), and renormalised: the label-shift correction of a classifier trained on the raw
@@ -250,6 +270,10 @@ def main(argv: list[str] | None = None) -> int:
         for name in list(means)[1:]:
             gap = bar_gaps(means[name], means["prior"])
             lines.append(f"| {name} | {' '.join(f'{g:.2f}' for g in gap)} (max {max(gap):.2f}) |")
+        if seconds:
+            lines += ["", *pairwise_gaps(means, {f"prior (seed {args.seed})": "prior",
+                                                **{f"prior (seed {s})": n for n, (_, s) in seconds.items()}},
+                                         "adaptive, weighted", k)]
     fig_path = (args.markdown.with_name(f"{args.markdown.stem}_fig7.png") if args.markdown
                 else args.out / "proposal_rn_fig7.png")
     plot_rn_probabilities({f"{args.task}: {name}": pr for name, pr in probs.items()}, plb.dim_names,

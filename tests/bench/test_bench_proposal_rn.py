@@ -7,7 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.bench_proposal_rn import bar_gaps, intervals_overlap, label_shift, main, mean_probs, run_inputs
+from bench.bench_proposal_rn import (
+    bar_gaps,
+    intervals_overlap,
+    label_shift,
+    main,
+    mean_probs,
+    pairwise_gaps,
+    run_inputs,
+)
 
 
 def test_bar_gaps_are_the_largest_difference_of_the_mean_probabilities() -> None:
@@ -84,3 +92,17 @@ def test_several_other_prior_runs_need_one_seed_each(tmp_path: Path, capsys: pyt
         main(argv)
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_pairwise_gaps_set_each_dataset_against_each_prior_only_one() -> None:
+    # one dimension of two choices, one input: the bars are the probabilities themselves
+    means = {"p0": [np.array([[1.0, 0.0]])], "p1": [np.array([[0.8, 0.2]])], "p2": [np.array([[0.9, 0.1]])],
+             "a": [np.array([[0.5, 0.5]])]}
+    priors = {"prior (seed 0)": "p0", "prior (seed 1)": "p1", "prior (seed 2)": "p2"}
+    lines = pairwise_gaps(means, priors, "a", 5)
+    assert "| mean of 5 RNs | prior (seed 0) | prior (seed 1) | prior (seed 2) |" in lines
+    assert "| prior (seed 0) | - | 0.20 | 0.10 |" in lines
+    assert "| prior (seed 1) | 0.20 | - | 0.10 |" in lines
+    assert "| a | 0.50 | 0.30 | 0.40 |" in lines
+    assert lines[-1] == ("Between prior-only datasets: 0.10-0.20 (median 0.10, 3 pairs); a against them: 0.30-0.50 "
+                         "(median 0.40).")
