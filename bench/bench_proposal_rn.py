@@ -36,6 +36,9 @@ Reported:
    inputs and on its own held-out demos, argmax success), and with ``--init-seeds K`` the mean of K RNs trained here
    on them (seeds 0..K-1) a row of the averaged table. Two prior-only datasets of the same size differ by their
    scenes and by which plans happened to succeed; the adaptive run's gap means little unless it exceeds theirs.
+   With ``--init-seeds K`` a last table sets the means of K RNs of each prior-only dataset and of the adaptive run
+   against each prior-only one (``pairwise_gaps``): the first prior run is a sample too, and the spread among the
+   prior-only runs is the floor the adaptive run is judged against.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
 [--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--markdown docs/proposal_rn_hammer.md]``
