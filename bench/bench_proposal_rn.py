@@ -83,14 +83,14 @@ def pairwise_gaps(means: dict[str, Sequence[np.ndarray]], priors: dict[str, str]
     prior-only dataset (``priors``: column label -> key of ``means``) and of ``other``, each against each prior-only
     one. Any one prior-only run is a sample too; the spread among them is the floor ``other`` is judged against."""
     labels = list(priors)
-    gap = {(a, b): max(bar_gaps(means[a], means[priors[b]])) for a in [*priors.values(), other] for b in labels}
+    rows = {**priors, other: other}  # row label -> key of means
+    gap = {(r, b): max(bar_gaps(means[rows[r]], means[priors[b]])) for r in rows for b in labels if r != b}
     lines = [(f"The largest bar difference (any dimension) between the means of {k} RNs of each dataset, against "
               f"each prior-only dataset:"), "", f"| mean of {k} RNs | {' | '.join(labels)} |",
              f"|---|{'---|' * len(labels)}"]
-    for row, key in [*priors.items(), (other, other)]:
-        lines.append(f"| {row} | " + " | ".join("-" if priors.get(row) == priors[b] else f"{gap[key, b]:.2f}"
-                                                  for b in labels) + " |")
-    among = [gap[priors[a], b] for i, a in enumerate(labels) for b in labels[i + 1:]]
+    for r in rows:
+        lines.append(f"| {r} | " + " | ".join("-" if r == b else f"{gap[r, b]:.2f}" for b in labels) + " |")
+    among = [gap[a, b] for i, a in enumerate(labels) for b in labels[i + 1:]]
     to_other = [gap[other, b] for b in labels]
     lines += ["", (f"Between prior-only datasets: {min(among):.2f}-{max(among):.2f} (median "
                    f"{float(np.median(among)):.2f}, {len(among)} pairs); {other} against them: "

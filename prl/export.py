@@ -352,7 +352,8 @@ def _lean_writes() -> Iterator[None]:
     from lerobot.datasets import dataset_metadata  # heavy: only to patch it for the block
 
     table_class = datasets.arrow_dataset.Dataset
-    saved = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, table_class.__dict__["from_dict"]
+    from_dict = table_class.__dict__["from_dict"]  # the classmethod itself, to put back as it was
+    saved = dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint, from_dict
     last: list[tuple[Any, Any]] = []
 
     def keep_last(stats: Any, root: Any) -> None:
@@ -360,7 +361,7 @@ def _lean_writes() -> Iterator[None]:
 
     def from_arrow_columns(cls: Any, mapping: Any, features: Any = None, *args: Any, **kwargs: Any) -> Any:
         columns = arrow_columns(mapping, features) if features is not None else mapping
-        return saved[2].__func__(cls, columns, features, *args, **kwargs)
+        return from_dict.__func__(cls, columns, features, *args, **kwargs)
 
     dataset_metadata.write_stats = keep_last
     datasets.arrow_dataset.generate_fingerprint = lambda dataset: generate_random_fingerprint()
