@@ -39,9 +39,14 @@ Reported:
    With ``--init-seeds K`` a last table sets the means of K RNs of each prior-only dataset and of the adaptive run
    against each prior-only one (``pairwise_gaps``): the first prior run is a sample too, and the spread among the
    prior-only runs is the floor the adaptive run is judged against.
+6. with ``--pointnet P``: every run's demos are encoded with that PointNet (the profile's, which does not depend on the
+   demos) and the ``prior`` and ``adaptive, weighted`` RNs are trained here too (init seed ``--seed``, the adaptive one
+   with the weights), so the runs may be made with ``--no-train-rn``: a run of 2,000 demos, or the unscrew demos of a
+   four-task paper run re-exported on their own, without the pipeline's RN stage.
 
 ``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--markdown docs/proposal_rn_hammer.md]``
+[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--pointnet models/pointnet-<key>.pt]
+[--markdown docs/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
@@ -128,10 +133,13 @@ def dataset_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str]:
     return root, f"prl/{repo}"
 
 
-def run_inputs(run_dir: Path, task: str, seed: int) -> tuple[Path, str, Path, Path]:
+def run_inputs(run_dir: Path, task: str, seed: int,
+               pointnet: Path | None = None) -> tuple[Path, str, Path, Path | None]:
     """(dataset root, repo id, PointNet, RN) of a pipeline run's output directory; FileNotFoundError naming what
-    is missing."""
+    is missing. With ``pointnet`` given: that PointNet and no RN (one is trained here), the run's models unread."""
     root, repo = dataset_inputs(run_dir, task, seed)
+    if pointnet is not None:
+        return root, repo, pointnet, None
     rn = run_dir / "models" / f"rn-seed{seed}.pt"
     pointnets = sorted((run_dir / "models").glob("pointnet-*.pt"))
     if not rn.exists():
@@ -174,7 +182,12 @@ def main(argv: list[str] | None = None) -> int:
                          "(repeat for several runs)")
     ap.add_argument("--second-prior-seed", type=int, action="append", default=[],
                     help="that run's --seed, one per --second-prior-dir (default: --seed + 1, + 2, ...)")
+    ap.add_argument("--pointnet", type=Path,
+                    help="encode every run with this PointNet and train the prior and adaptive RNs here too (runs "
+                         "made with --no-train-rn)")
     args = ap.parse_args(argv)
+    if args.pointnet is not None and not args.pointnet.is_file():
+        ap.error(f"--pointnet {args.pointnet}: no such file")
     if args.init_seeds < 1:
         ap.error(f"--init-seeds must be >= 1, got {args.init_seeds}")
     second_seeds = args.second_prior_seed or [args.seed + 1 + i for i in range(len(args.second_prior_dir))]
@@ -188,8 +201,8 @@ def main(argv: list[str] | None = None) -> int:
                for d, s in zip(args.second_prior_dir, second_seeds, strict=True)}
 
     plb = load_plb()
-    prior_in = run_inputs(args.prior_dir, args.task, args.seed)
-    adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed)
+    prior_in = run_inputs(args.prior_dir, args.task, args.seed, args.pointnet)
+    adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed, args.pointnet)
     # name -> (dataset root, repo id, the PointNet that encodes it, the run's seed: the salt of the pipeline's split)
     runs = {"prior": (*prior_in[:3], args.seed), "adaptive": (*adapt_in[:3], args.seed)}
     for second, (directory, s) in seconds.items():
@@ -209,8 +222,10 @@ def main(argv: list[str] | None = None) -> int:
                             progress=False, w_train=d["weights"][d["train"]] if weighted else None)
         return save_rn(model, cfg, FEATURE_LAYOUT, args.out / f"rn-{args.task}-{name}.pt")
 
-    paths = {"prior": prior_in[3], "prior, another init seed": trained_here(p, "prior-reseeded", args.seed + 1),
-             "adaptive, weighted": adapt_in[3], "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
+    paths = {"prior": prior_in[3] or trained_here(p, "prior", args.seed),
+             "prior, another init seed": trained_here(p, "prior-reseeded", args.seed + 1),
+             "adaptive, weighted": adapt_in[3] or trained_here(a, "adaptive-weighted", args.seed, weighted=True),
+             "adaptive, raw": trained_here(a, "adaptive-raw", args.seed)}
     pointnets = {"prior": prior_in[2], "prior, another init seed": prior_in[2], "adaptive, weighted": adapt_in[2],
                  "adaptive, raw": adapt_in[2]}
     own_val = {"adaptive, weighted": a, "adaptive, raw": a}  # the RNs scored on their own held-out demos too

@@ -66,6 +66,25 @@ def test_run_inputs_name_a_missing_run(tmp_path: Path) -> None:
         run_inputs(tmp_path, "hammer", 0)
 
 
+def test_run_inputs_with_a_pointnet_need_no_models(tmp_path: Path) -> None:
+    (tmp_path / "datasets" / "unscrew-seed2").mkdir(parents=True)  # a --no-train-rn run: no models/ at all
+    pointnet = tmp_path / "pointnet-x.pt"
+    assert run_inputs(tmp_path, "unscrew", 2, pointnet) == (tmp_path / "datasets" / "unscrew-seed2",
+                                                            "prl/unscrew-seed2", pointnet, None)
+    with pytest.raises(FileNotFoundError, match="rn-seed2.pt not found"):
+        run_inputs(tmp_path, "unscrew", 2)
+
+
+def test_a_missing_pointnet_is_refused_before_anything_is_read(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--prior-dir", str(tmp_path / "p"), "--adaptive-dir", str(tmp_path / "a"), "--task", "unscrew",
+            "--pointnet", str(tmp_path / "pointnet-missing.pt")]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert f"--pointnet {tmp_path / 'pointnet-missing.pt'}: no such file" in capsys.readouterr().err
+
+
 def test_a_second_prior_run_of_the_same_seed_is_refused_before_anything_is_read(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # the same seed would be the same dataset, not a floor of two; the runs named do not exist, so an error about
