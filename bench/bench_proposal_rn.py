@@ -97,9 +97,11 @@ def pairwise_gaps(means: dict[str, Sequence[np.ndarray]], priors: dict[str, str]
         lines.append(f"| {r} | " + " | ".join("-" if r == b else f"{gap[r, b]:.2f}" for b in labels) + " |")
     among = [gap[a, b] for i, a in enumerate(labels) for b in labels[i + 1:]]
     to_other = [gap[other, b] for b in labels]
-    lines += ["", (f"Between prior-only datasets: {min(among):.2f}-{max(among):.2f} (median "
-                   f"{float(np.median(among)):.2f}, {len(among)} pairs); {other} against them: "
-                   f"{min(to_other):.2f}-{max(to_other):.2f} (median {float(np.median(to_other)):.2f}).")]
+    floor = (f"the two prior-only datasets: {among[0]:.2f}" if len(among) == 1 else
+             f"prior-only datasets: {min(among):.2f}-{max(among):.2f} (median {float(np.median(among)):.2f}, "
+             f"{len(among)} pairs)")
+    lines += ["", (f"Between {floor}; {other} against them: {min(to_other):.2f}-{max(to_other):.2f} (median "
+                   f"{float(np.median(to_other)):.2f}).")]
     return lines
 
 

@@ -125,3 +125,5 @@ def test_pairwise_gaps_set_each_dataset_against_each_prior_only_one() -> None:
     assert "| a | 0.50 | 0.30 | 0.40 |" in lines
     assert lines[-1] == ("Between prior-only datasets: 0.10-0.20 (median 0.10, 3 pairs); a against them: 0.30-0.50 "
                          "(median 0.40).")
+    two = pairwise_gaps(means, {"prior (seed 0)": "p0", "prior (seed 1)": "p1"}, "a", 3)
+    assert two[-1] == "Between the two prior-only datasets: 0.20; a against them: 0.30-0.50 (median 0.40)."
