@@ -44,8 +44,7 @@ def task_record(rows: list[dict], sizes: tuple[int, ...]) -> dict:
     first = [r for r in kept if int(r.get("round", 0)) == 0]
     later = [r for r in kept if int(r.get("round", 0)) > 0]
     plans = np.array([r["plan"] for r in kept], dtype=np.int64).reshape(-1, len(sizes))
-    later_plans = np.array([r["plan"] for r in later], dtype=np.int64).reshape(-1, len(sizes))
-    w = importance_weights([r["prior_logp"] for r in later], [r["proposal_logp"] for r in later]) if later else []
+    later_plans, w = kept_plans(later, len(sizes))
     weighted = weighted_choice_freqs(later_plans, sizes, w)
     raw = weighted_choice_freqs(later_plans, sizes)
     prior_only = weighted_choice_freqs(np.array([r["plan"] for r in first], dtype=np.int64).reshape(-1, len(sizes)),

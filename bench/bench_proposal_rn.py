@@ -217,12 +217,18 @@ def main(argv: list[str] | None = None) -> int:
     p, a = data["prior"], data["adaptive"]
     args.out.mkdir(parents=True, exist_ok=True)
 
+    trained: dict[tuple[int, int, bool], Path] = {}  # (demos, init seed, weighted) -> the RN already trained so
+
     def trained_here(d: dict, name: str, init_seed: int, weighted: bool = False) -> Path:
-        """An RN trained here on ``d``'s training demos (with their weights or without), saved under ``--out``."""
-        cfg = RNConfig(epochs=args.rn_epochs, seed=init_seed)
-        model, _ = train_rn(d["x"][d["train"]], d["plan"][d["train"]], cfg, d["x"][d["val"]], d["plan"][d["val"]],
-                            progress=False, w_train=d["weights"][d["train"]] if weighted else None)
-        return save_rn(model, cfg, FEATURE_LAYOUT, args.out / f"rn-{args.task}-{name}.pt")
+        """An RN trained here on ``d``'s training demos (with their weights or without), saved under ``--out``; the
+        same demos, seed and weighting as an earlier one (training is deterministic) reuse its file."""
+        key = (id(d), init_seed, weighted)
+        if key not in trained:
+            cfg = RNConfig(epochs=args.rn_epochs, seed=init_seed)
+            model, _ = train_rn(d["x"][d["train"]], d["plan"][d["train"]], cfg, d["x"][d["val"]], d["plan"][d["val"]],
+                                progress=False, w_train=d["weights"][d["train"]] if weighted else None)
+            trained[key] = save_rn(model, cfg, FEATURE_LAYOUT, args.out / f"rn-{args.task}-{name}.pt")
+        return trained[key]
 
     paths = {"prior": prior_in[3] or trained_here(p, "prior", args.seed),
              "prior, another init seed": trained_here(p, "prior-reseeded", args.seed + 1),
