@@ -42,10 +42,11 @@ Reported:
 6. with ``--pointnet P``: every run's demos are encoded with that PointNet (the profile's, which does not depend on the
    demos) and the ``prior`` and ``adaptive, weighted`` RNs are trained here too (init seed ``--seed``, the adaptive one
    with the weights), so the runs may be made with ``--no-train-rn``: a run of 2,000 demos, or the unscrew demos of a
-   four-task paper run re-exported on their own, without the pipeline's RN stage.
+   four-task paper run re-exported on their own, without the pipeline's RN stage. ``--adaptive-seed`` names the
+   adaptive run's seed where it is not the prior run's (an adaptive run set against prior-only runs of new seeds).
 
-``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--scenes 50]
-[--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--pointnet models/pointnet-<key>.pt]
+``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--adaptive-seed S]
+[--scenes 50] [--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--pointnet models/pointnet-<key>.pt]
 [--markdown docs/proposal_rn_hammer.md]``
 """
 
@@ -171,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--adaptive-dir", type=Path, required=True, help="output dir of the --proposal adaptive run")
     ap.add_argument("--task", required=True)
     ap.add_argument("--seed", type=int, default=0, help="the runs' --seed")
+    ap.add_argument("--adaptive-seed", type=int,
+                    help="the adaptive run's --seed where it differs from the prior run's (default: --seed)")
     ap.add_argument("--scenes", type=int, default=50, help="unseen scenes each RN's plan is executed on")
     ap.add_argument("--rn-epochs", type=int, default=200, help="epochs of the raw RN (the paper profile's 200)")
     ap.add_argument("--val-fraction", type=float, default=defaults.rn_val_fraction)
@@ -204,9 +207,10 @@ def main(argv: list[str] | None = None) -> int:
 
     plb = load_plb()
     prior_in = run_inputs(args.prior_dir, args.task, args.seed, args.pointnet)
-    adapt_in = run_inputs(args.adaptive_dir, args.task, args.seed, args.pointnet)
+    adaptive_seed = args.seed if args.adaptive_seed is None else args.adaptive_seed
+    adapt_in = run_inputs(args.adaptive_dir, args.task, adaptive_seed, args.pointnet)
     # name -> (dataset root, repo id, the PointNet that encodes it, the run's seed: the salt of the pipeline's split)
-    runs = {"prior": (*prior_in[:3], args.seed), "adaptive": (*adapt_in[:3], args.seed)}
+    runs = {"prior": (*prior_in[:3], args.seed), "adaptive": (*adapt_in[:3], adaptive_seed)}
     for second, (directory, s) in seconds.items():
         runs[second] = (*dataset_inputs(directory, args.task, s), prior_in[2], s)
     data = {}
@@ -258,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
              f"(`python -m bench.bench_proposal_rn`)."), "",
              f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
-             (f"- adaptive run `{args.adaptive_dir}`: {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
+             (f"- adaptive run `{args.adaptive_dir}` (seed {adaptive_seed}): {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
              f"size of their weights {effective_sample_size(a['weights']):.0f}, largest weight "
              f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"),
              *second_lines,

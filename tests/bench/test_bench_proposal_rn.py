@@ -127,3 +127,16 @@ def test_pairwise_gaps_set_each_dataset_against_each_prior_only_one() -> None:
                          "(median 0.40).")
     two = pairwise_gaps(means, {"prior (seed 0)": "p0", "prior (seed 1)": "p1"}, "a", 3)
     assert two[-1] == "Between the two prior-only datasets: 0.20; a against them: 0.30-0.50 (median 0.40)."
+
+
+@pytest.mark.parametrize(("extra", "missing"), [([], "hammer-seed2"), (["--adaptive-seed", "5"], "hammer-seed5")])
+def test_the_adaptive_run_is_found_by_its_own_seed(tmp_path: Path, extra: list[str], missing: str) -> None:
+    # the prior run is seed 2 and the adaptive run seed 0: without --adaptive-seed the adaptive dataset is looked for
+    # under the prior run's seed, with it under its own; either way the one missing is named before anything is read
+    (tmp_path / "p" / "datasets" / "hammer-seed2").mkdir(parents=True)
+    (tmp_path / "a" / "datasets" / "hammer-seed0").mkdir(parents=True)
+    (tmp_path / "pointnet.pt").touch()
+    argv = ["--prior-dir", str(tmp_path / "p"), "--adaptive-dir", str(tmp_path / "a"), "--task", "hammer",
+            "--seed", "2", "--pointnet", str(tmp_path / "pointnet.pt"), *extra]
+    with pytest.raises(FileNotFoundError, match=f"a/datasets/{missing} not found"):
+        main(argv)
