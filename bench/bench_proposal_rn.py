@@ -262,9 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
              f"(`python -m bench.bench_proposal_rn`)."), "",
              f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
-             (f"- adaptive run `{args.adaptive_dir}` (seed {adaptive_seed}): {len(a['x'])} demos, {len(a['val'])} held out, effective sample "
-             f"size of their weights {effective_sample_size(a['weights']):.0f}, largest weight "
-             f"{a['weights'].max() / a['weights'].mean():.1f}x the mean"),
+             (f"- adaptive run `{args.adaptive_dir}` (seed {adaptive_seed}): {len(a['x'])} demos, {len(a['val'])} "
+             f"held out, effective sample size of their weights {effective_sample_size(a['weights']):.0f}, largest "
+             f"weight {a['weights'].max() / a['weights'].mean():.1f}x the mean"),
              *second_lines,
              "",
              (f"| RN | largest Fig 7 bar difference from the prior RN per dimension ({dims}), common inputs | "
