@@ -140,3 +140,32 @@ def test_the_adaptive_run_is_found_by_its_own_seed(tmp_path: Path, extra: list[s
             "--seed", "2", "--pointnet", str(tmp_path / "pointnet.pt"), *extra]
     with pytest.raises(FileNotFoundError, match=f"a/datasets/{missing} not found"):
         main(argv)
+
+
+def test_with_its_seed_the_adaptive_run_is_read_from_its_own_dataset(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    # the prior run is seed 2 and the adaptive run seed 0: with --adaptive-seed 0 both are found, and the datasets
+    # read are the prior's seed-2 one and then the adaptive's seed-0 one
+    import flows.compute_features
+
+    (tmp_path / "p" / "datasets" / "hammer-seed2").mkdir(parents=True)
+    (tmp_path / "a" / "datasets" / "hammer-seed0").mkdir(parents=True)
+    (tmp_path / "pointnet.pt").touch()
+    read: list[tuple[Path, str]] = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_rn_features(root: Path, repo: str, *_: object) -> dict:
+        read.append((root, repo))
+        if len(read) == 2:
+            raise Stop
+        return {"seeds": np.arange(10)}
+
+    monkeypatch.setattr(flows.compute_features, "rn_features", fake_rn_features)
+    argv = ["--prior-dir", str(tmp_path / "p"), "--adaptive-dir", str(tmp_path / "a"), "--task", "hammer",
+            "--seed", "2", "--adaptive-seed", "0", "--pointnet", str(tmp_path / "pointnet.pt")]
+    with pytest.raises(Stop):
+        main(argv)
+    assert read == [(tmp_path / "p" / "datasets" / "hammer-seed2", "prl/hammer-seed2"),
+                    (tmp_path / "a" / "datasets" / "hammer-seed0", "prl/hammer-seed0")]
