@@ -14,14 +14,20 @@ give over one if nothing but the attempts ran and no worker ever waited. ``--pin
 ``--beside-server`` keeps Prefect's temporary server (what ``python -m flows.full_pipeline`` starts when no
 ``PREFECT_API_URL`` is set) running, idle, through every run: what it alone costs the simulations beside it.
 
+``--dask`` runs the shards as the pipeline's workers run them instead: on a local Dask cluster of ``--processes``
+single-thread workers with the pipeline's settings (``flows.synthesize.LOCAL_DASK_CONFIG``; no Prefect), one shard
+per worker, the workers started and their imports done before the clock starts: what the Dask path costs beyond
+the cores.
+
 ``python -m bench.bench_cores [--task hammer] [--attempts 200] [--processes 2] [--repeats 1|2] [--pin]
-[--beside-server]``
+[--beside-server] [--dask]``
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -53,23 +59,50 @@ def run_order(processes: int, repeats: int) -> list[int]:
     return [1, processes] if repeats == 1 else [1, processes, processes, 1]
 
 
-def _child(task: str, attempts: int, seed: int, out: Path, go: Path, core: int | None) -> None:
-    """One process: import, say ready, wait for ``go``, run the shard's ``attempts`` attempts, write the times."""
+def _shard_times(task: str, attempts: int, seed: int, out: Path) -> dict[str, float]:
+    """Run shard 0's first ``attempts`` attempts into ``out`` in this process; its counts and times."""
     import envs  # noqa: F401  (registers the hand and the tasks)
     from envs.synthesis import ShardSpec, run_shard
 
-    if core is not None:
-        os.sched_setaffinity(0, {core})
     spec = ShardSpec(task=task, shard=0, n_success=attempts, run_seed=seed, out_dir=out / "syn",
                      max_attempts=attempts)
+    cpu0 = time.process_time()
+    result = run_shard(spec, keep_env=True)
+    return {"attempts": result.attempts, "successes": result.successes, "seconds": result.seconds,
+            "cpu_seconds": time.process_time() - cpu0}
+
+
+def _import_envs() -> None:
+    import envs  # noqa: F401  (a worker's imports, before the clock starts)
+
+
+def _child(task: str, attempts: int, seed: int, out: Path, go: Path, core: int | None) -> None:
+    """One process: import, say ready, wait for ``go``, run the shard's ``attempts`` attempts, write the times."""
+    _import_envs()
+    if core is not None:
+        os.sched_setaffinity(0, {core})
     (out / "ready").touch()
     while not go.exists():
         time.sleep(_POLL_S)
-    cpu0 = time.process_time()
-    result = run_shard(spec, keep_env=True)
-    cpu = time.process_time() - cpu0
-    (out / "result.json").write_text(json.dumps({"attempts": result.attempts, "successes": result.successes,
-                                                 "seconds": result.seconds, "cpu_seconds": cpu}))
+    (out / "result.json").write_text(json.dumps(_shard_times(task, attempts, seed, out)))
+
+
+def _run_dask(k: int, args: argparse.Namespace, root: Path) -> list[dict[str, float]]:
+    """The shards on a fresh local cluster of ``k`` workers set up as the pipeline's, one shard per worker."""
+    # heavy: distributed and the pipeline's Dask settings, only with --dask
+    import dask
+    from distributed import Client, LocalCluster
+
+    from flows.synthesize import LOCAL_DASK_CONFIG
+
+    with dask.config.set(LOCAL_DASK_CONFIG), \
+            LocalCluster(n_workers=k, threads_per_worker=1, processes=True, dashboard_address=None,
+                         silence_logs=logging.WARNING, config=LOCAL_DASK_CONFIG) as cluster, \
+            Client(cluster) as client:
+        client.run(_import_envs)
+        futures = [client.submit(_shard_times, args.task, args.attempts, args.seed, root / f"p{i}", workers=[w],
+                                 pure=False) for i, w in enumerate(client.scheduler_info()["workers"])]
+        return client.gather(futures)
 
 
 @contextmanager
@@ -121,6 +154,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pin", action="store_true", help="pin each process to its own core")
     parser.add_argument("--beside-server", action="store_true",
                         help="keep Prefect's temporary server running, idle, beside every run")
+    parser.add_argument("--dask", action="store_true",
+                        help="run the shards on a local Dask cluster set up as the pipeline's, one per worker")
     parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--go", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--core", type=int, help=argparse.SUPPRESS)
@@ -133,13 +168,16 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--attempts must be > 0, got {args.attempts}")
     if args.processes < 2:
         parser.error(f"--processes must be >= 2, got {args.processes}")
+    if args.pin and args.dask:
+        parser.error("--pin pins bare processes; it does not go with --dask")
     if args.child is not None:
         _child(args.task, args.attempts, args.seed, args.child, args.go, args.core)
         return
 
     print(f"{args.task}: {args.attempts} attempts of shard 0 per process, runs of "
           f"{run_order(args.processes, args.repeats)} processes{', pinned' if args.pin else ''}"
-          f"{', beside an idle Prefect server' if args.beside_server else ''}", flush=True)
+          f"{', beside an idle Prefect server' if args.beside_server else ''}"
+          f"{', as Dask workers' if args.dask else ''}", flush=True)
     wall: dict[int, list[float]] = {1: [], args.processes: []}
     cpu: dict[int, list[float]] = {1: [], args.processes: []}
     with ExitStack() as stack:
@@ -147,7 +185,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.beside_server:
             print(f"Prefect's temporary server at {stack.enter_context(_prefect_server())}", flush=True)
         for n, k in enumerate(run_order(args.processes, args.repeats)):
-            results = _run(k, args, Path(tmp) / f"run{n}")
+            results = (_run_dask if args.dask else _run)(k, args, Path(tmp) / f"run{n}")
             if len({(r["attempts"], r["successes"]) for r in results}) != 1:
                 raise RuntimeError(f"the processes of one run made different attempts: {results}")
             wall[k] += [r["seconds"] / r["attempts"] for r in results]

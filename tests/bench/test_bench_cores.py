@@ -28,7 +28,8 @@ def test_runs_go_one_k_k_one() -> None:
 def test_bad_settings_are_clear_errors(capsys: pytest.CaptureFixture[str]) -> None:
     for argv, message in ((["--task", "hamer"], "unknown task(s) ['hamer']"),
                           (["--attempts", "0"], "--attempts must be > 0, got 0"),
-                          (["--processes", "1"], "--processes must be >= 2, got 1")):
+                          (["--processes", "1"], "--processes must be >= 2, got 1"),
+                          (["--pin", "--dask"], "--pin pins bare processes; it does not go with --dask")):
         with pytest.raises(SystemExit):
             main(argv)
         assert message in capsys.readouterr().err
