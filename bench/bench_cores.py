@@ -19,7 +19,7 @@ single-thread workers with the pipeline's settings (``flows.synthesize.LOCAL_DAS
 per worker, the workers started and their imports done before the clock starts: what the Dask path costs beyond
 the cores.
 
-Measured (six runs, 2026-12-06): ``docs/speed.md``, "What the two cores allow without any orchestration".
+Measured (eight runs, 2026-12-06): ``docs/speed.md``, "What the two cores allow without any orchestration".
 
 ``python -m bench.bench_cores [--task hammer] [--attempts 200] [--processes 2] [--repeats 1|2] [--pin]
 [--beside-server] [--dask]``
