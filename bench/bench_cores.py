@@ -6,7 +6,7 @@ flow's process, Prefect's temporary server). This bench measures the first alone
 task's shard 0 from the prior, the same seed, so the very same attempts and physics) run bare (``run_shard``: no
 Prefect, no Dask) in fresh processes, once by itself and once as ``--processes`` copies at the same time. Each
 process imports first and waits at a start line, so only the simulation is timed, side by side. The runs go
-1, k, k, 1 (``--repeats 2``, the default) because a shared host's speed drifts; the sums are compared.
+1, k, k, 1 (``--repeats 2``, the default) because a shared host's speed drifts; the means are compared.
 
 The ceiling is ``k x (seconds per attempt alone) / (seconds per attempt with k at once)``: what ``k`` workers would
 give over one if nothing but the attempts ran and no worker ever waited. ``--pin`` sets each process to its own core
@@ -15,7 +15,7 @@ give over one if nothing but the attempts ran and no worker ever waited. ``--pin
 ``PREFECT_API_URL`` is set) running, idle, through every run: what it alone costs the simulations beside it.
 
 ``--dask`` runs the shards as the pipeline's workers run them instead: on a local Dask cluster of ``--processes``
-single-thread workers with the pipeline's settings (``flows.synthesize.LOCAL_DASK_CONFIG``; no Prefect), one shard
+single-thread workers with the pipeline's settings (``flows.synthesize.local_cluster_kwargs``; no Prefect), one shard
 per worker, the workers started and their imports done before the clock starts: what the Dask path costs beyond
 the cores.
 
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import subprocess
 import sys
@@ -95,11 +94,9 @@ def _run_dask(k: int, args: argparse.Namespace, root: Path) -> list[dict[str, fl
     import dask
     from distributed import Client, LocalCluster
 
-    from flows.synthesize import LOCAL_DASK_CONFIG
+    from flows.synthesize import LOCAL_DASK_CONFIG, local_cluster_kwargs
 
-    with dask.config.set(LOCAL_DASK_CONFIG), \
-            LocalCluster(n_workers=k, threads_per_worker=1, processes=True, dashboard_address=None,
-                         silence_logs=logging.WARNING, config=LOCAL_DASK_CONFIG) as cluster, \
+    with dask.config.set(LOCAL_DASK_CONFIG), LocalCluster(**local_cluster_kwargs(k)) as cluster, \
             Client(cluster) as client:
         client.run(_import_envs)
         futures = [client.submit(_shard_times, args.task, args.attempts, args.seed, root / f"p{i}", workers=[w],
@@ -127,13 +124,14 @@ def _run(k: int, args: argparse.Namespace, root: Path) -> list[dict[str, float]]
     """Start ``k`` processes, let them import, start them at once, and return each one's times."""
     go = root / "go"
     outs = [root / f"p{i}" for i in range(k)]
+    cores = sorted(os.sched_getaffinity(0))  # the cores this process may use, not 0..k-1
     procs = []
     for i, out in enumerate(outs):
         out.mkdir(parents=True)
         cmd = [sys.executable, "-m", "bench.bench_cores", "--child", str(out), "--go", str(go),
                "--task", args.task, "--attempts", str(args.attempts), "--seed", str(args.seed)]
         if args.pin:
-            cmd += ["--core", str(i % os.cpu_count())]
+            cmd += ["--core", str(cores[i % len(cores)])]
         procs.append(subprocess.Popen(cmd))
     while not all((out / "ready").exists() for out in outs):
         if any(p.poll() not in (None, 0) for p in procs):

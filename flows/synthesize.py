@@ -112,10 +112,14 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
     logging.getLogger("distributed").setLevel(logging.WARNING)
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
-    return DaskTaskRunner(cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
-                                          "dashboard_address": None, "env": worker_env(),
-                                          "silence_logs": logging.WARNING,
-                                          "config": LOCAL_DASK_CONFIG})
+    return DaskTaskRunner(cluster_kwargs={**local_cluster_kwargs(workers), "env": worker_env()})
+
+
+def local_cluster_kwargs(workers: int) -> dict[str, Any]:
+    """A local cluster of ``workers`` single-thread processes, no dashboard, warnings only, ``LOCAL_DASK_CONFIG``
+    (the pipeline's, less the workers' Prefect environment that ``make_task_runner`` adds)."""
+    return {"n_workers": workers, "threads_per_worker": 1, "processes": True, "dashboard_address": None,
+            "silence_logs": logging.WARNING, "config": LOCAL_DASK_CONFIG}
 
 
 class _LogTally:
