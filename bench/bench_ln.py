@@ -28,11 +28,12 @@ from prl.config import LNConfig
 
 def measure(n_envs: int, timesteps: int, pointnet: Path, seed: int) -> float:
     """Timesteps per second of ``learn`` with ``n_envs`` plan environments (start-up excluded)."""
+    from envs.plan_env import PlanEnv
     from envs.tasks import fast_resets  # heavy: loads the simulator
     from envs.vec_env import make_vec_env
     from prl.ln import make_ln
 
-    env = make_vec_env("hammer", n_envs, run_seed=seed, pointnet_path=pointnet)
+    env = make_vec_env(PlanEnv, "hammer", n_envs, run_seed=seed, pointnet_path=pointnet)
     try:
         model = make_ln(env, LNConfig(n_envs=n_envs, seed=seed), np.zeros(1680), np.ones(1680))
         with fast_resets():

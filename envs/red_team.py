@@ -118,7 +118,7 @@ def rl_search(task: str, timesteps: int, check_scenes: int = 10, seed: int = 0, 
     finally:
         probe.close()
     cfg = LNConfig(timesteps=timesteps, n_envs=n_envs, demo_steps=0, seed=seed)
-    env = make_vec_env(task, n_envs, run_seed=seed, pointnet_path=pointnet)
+    env = make_vec_env(PlanEnv, task, n_envs, run_seed=seed, pointnet_path=pointnet)
     try:
         model = make_ln(env, cfg, xs.mean(axis=0), xs.std(axis=0))
         with fast_resets():

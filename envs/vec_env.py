@@ -1,4 +1,5 @@
-"""SB3 vector environments of the LN: plan or joint-control environments of one task, one per rank.
+"""SB3 vector environments of the LN: plan or joint-control environments of one task, one per rank (the caller
+names the environment's class, so that this module decides no method's outcome but through the class it is given).
 
 One env steps in this process; more step in parallel in spawned subprocesses (one scene each), each worker
 frozen out of the garbage collector's walks for its whole life (``fast_resets``).
@@ -13,20 +14,18 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from envs.joint_env import JointControlEnv
-from envs.plan_env import PlanEnv
 from envs.tasks import fast_resets
 
 
-def make_vec_env(task: str, n_envs: int = 1, joint: bool = False, run_seed: int = 0, **kwargs: Any) -> Any:
-    """An SB3 vector env of ``n_envs`` ``PlanEnv`` (or ``JointControlEnv`` when ``joint``) of ``task``, ranks
-    0..n_envs-1 of the ``run_seed`` stream; ``kwargs`` go to the env. One env steps in this process; more
-    step in parallel in spawned subprocesses, one scene each."""
+def make_vec_env(env_class: type[gym.Env], task: str, n_envs: int = 1, run_seed: int = 0, **kwargs: Any) -> Any:
+    """An SB3 vector env of ``n_envs`` ``env_class`` environments (``envs.plan_env.PlanEnv`` or
+    ``envs.joint_env.JointControlEnv``) of ``task``, ranks 0..n_envs-1 of the ``run_seed`` stream; ``kwargs`` go to
+    the env. One env steps in this process; more step in parallel in spawned subprocesses, one scene each."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv  # heavy: only the LN needs SB3
 
     if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
         raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}")
-    fns = [partial(_make_env, joint, task, run_seed, rank, n_envs > 1, kwargs) for rank in range(n_envs)]
+    fns = [partial(_make_env, env_class, task, run_seed, rank, n_envs > 1, kwargs) for rank in range(n_envs)]
     if n_envs == 1:
         return DummyVecEnv(fns)
     # one core per env: BLAS/OpenMP pools sized for the whole machine in every worker oversubscribe the cores
@@ -43,11 +42,9 @@ def make_vec_env(task: str, n_envs: int = 1, joint: bool = False, run_seed: int 
                 os.environ[name] = value
 
 
-def _make_env(joint: bool, task: str, run_seed: int, rank: int, own_process: bool, kwargs: dict[str, Any]) -> gym.Env:
-    if joint:
-        env: gym.Env = JointControlEnv(task, run_seed=run_seed, rank=rank, **kwargs)
-    else:
-        env = PlanEnv(task, run_seed=run_seed, rank=rank, **kwargs)
+def _make_env(env_class: type[gym.Env], task: str, run_seed: int, rank: int, own_process: bool,
+              kwargs: dict[str, Any]) -> gym.Env:
+    env = env_class(task, run_seed=run_seed, rank=rank, **kwargs)
     if hasattr(env, "warm_up"):
         env.warm_up()  # everything a first episode creates exists before any fast_resets() freeze
     elif hasattr(env, "build"):

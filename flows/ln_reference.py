@@ -31,7 +31,7 @@ from prl.ln_reference import (
     reference_reuse,
     write_reference,
 )
-from prl.version import file_digest, outcome_version
+from prl.version import file_digest, outcome_file_digests, version_of
 
 REFERENCE_PROCEDURE = 1
 """Version of what this command computes for a reference (the plans, their seeds, the RN's decoding), a setting of
@@ -130,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     seeds = evaluation_seeds(args.eval_seed, args.eval_scenes)
     settings = reference_settings(args.eval_seed, args.eval_scenes, EPISODE_FRAMES, args.rn_path, pointnet, n_points)
     for task_name in tasks:
-        record = {"task": task_name, "settings": settings, "code_version": outcome_version(task_name)}
+        files = outcome_file_digests(task_name, "reference")
+        record = {"task": task_name, "settings": settings, "code_version": version_of(files), "code_files": files}
         existing, note = reference_decision(args.results_dir, record)
         print(note, flush=True)
         ref = existing or run_reference(record, seeds, args.rn_path, pointnet)

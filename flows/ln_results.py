@@ -6,10 +6,12 @@ alone; ``python -m flows.report`` regenerates ``docs/results.md`` from them.
 
 What invalidates a committed summary (the point is re-run and its file replaced; the sweep prints why):
 
-- its task's ``code_version`` changed: any of ``prl.version.outcome_files(task)``, i.e. the task's own module
+- its ``code_version`` changed: any of ``prl.version.outcome_files(task, method)``, i.e. the task's own module
   (its scene, physics and success rule), the task base and registry, the hand, the executor and the episode
-  stepping, the plan and joint-control environments, the evaluation's trials, the LN and the library modules it
-  imports, ``assets/``;
+  stepping, the evaluation's trials, the LN and the library modules it imports, ``assets/``, and the method's own
+  files: the plan environment, x and the export's readers for a plan-space method, the joint-control environment
+  for a joint-space one (each summary records the digest of each file, ``code_files``, so the report names what
+  changed);
 - a setting changed: the LN's and SB3's parameters, the evaluation's scene seed or count, the plan environment's
   frames or surface points, the PointNet (its file name: a key of its config and code version), the dataset's
   recipe (``dataset_recipe``: the synthesis run that made the task's demonstrations, by its directory key of run
@@ -49,7 +51,7 @@ from prl.ln_summary import (
     thin_rows,
     write_summary,
 )
-from prl.version import file_digest, outcome_version
+from prl.version import file_digest, outcome_file_digests, outcome_version, version_of
 
 POINT_PROCEDURE = 1
 """Version of what ``flows.train_ln.run_point`` computes for a point (pre-training, training, evaluation), a
@@ -110,8 +112,7 @@ def task_dataset_digest(dataset_root: Path, demo_dir: Path, task_name: str) -> s
 
 def point_records(points: list[LNPoint], setup: LNSetup, dataset_root: Path, eval_seed: int) -> dict[str, Any]:
     """``{point name: record}``: what each point would be run with now (``prl.ln_summary.RECORD_KEYS``)."""
-    tasks = sorted({p.task for p in points})
-    versions = {t: outcome_version(t) for t in tasks}
+    files = {(p.task, p.variant): outcome_file_digests(p.task, p.variant) for p in points}
     plan_tasks = sorted({p.task for p in points if p.variant != "joint"})
     digests = {t: task_dataset_digest(dataset_root, setup.demo_dir, t) for t in plan_tasks}
     recipes = {t: dataset_recipe(dataset_root, t) for t in plan_tasks}
@@ -120,7 +121,8 @@ def point_records(points: list[LNPoint], setup: LNSetup, dataset_root: Path, eva
     return {p.name: {"point": {"task": p.task, "variant": p.variant, "demo_steps": p.demo_steps, "seed": p.seed},
                      "timesteps": int(setup.ln.timesteps),
                      "settings": point_settings(p, setup, eval_seed, None if joint[p.name] else recipes[p.task]),
-                     "code_version": versions[p.task],
+                     "code_version": version_of(files[p.task, p.variant]),
+                     "code_files": files[p.task, p.variant],
                      "dataset_digest": None if joint[p.name] else digests[p.task],
                      "pointnet_sha256": None if joint[p.name] else pointnet}
             for p in points}
@@ -168,13 +170,14 @@ def ln_committed_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None
     point runs, the summary keeps the one it started with, which a later sweep will not reuse."""
     if parent_run_id is not None:
         tracking.configure("prl")
-    started, version = _now(), outcome_version(point.task)
+    started, files = _now(), outcome_file_digests(point.task, point.variant)
+    version = version_of(files)
     if version != record["code_version"]:
         print(f"{point.name}: the {point.task} code changed since the sweep started ({record['code_version']} -> "
               f"{version}); recording {version}")
-        record = {**record, "code_version": version}
+        record = {**record, "code_version": version, "code_files": files}
     summary = run_point(point, setup, parent_run_id)
-    if outcome_version(point.task) != version:
+    if outcome_version(point.task, point.variant) != version:
         print(f"{point.name}: the {point.task} code changed while the point ran; its summary records the version "
               f"it started with ({version}), so a later sweep runs it again")
     path = write_summary(results_dir, committed_summary(summary, record, started, _now(), point_cores(setup.ln.n_envs)))

@@ -158,6 +158,8 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     run, or ``parent_run_id``); returns its summary (also written to ``setup.out_dir/<name>.json``)."""
     import mlflow  # heavy: mlflow
 
+    from envs.joint_env import JointControlEnv
+    from envs.plan_env import PlanEnv
     from envs.tasks import fast_resets, task_class
     from envs.vec_env import make_vec_env
     from prl.ln import make_ln, pretrain, save_ln, train_ln
@@ -179,7 +181,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         mlflow.set_tags({"ln_point": point.name, "ln_variant": point.variant, "task": point.task})
         env_kwargs = {} if joint else {"pointnet_path": setup.pointnet_path, "n_points": setup.n_points,
                                        **({"n_frames": setup.n_frames} if setup.n_frames else {})}
-        env = make_vec_env(point.task, cfg.n_envs, joint=joint, run_seed=point.seed, **env_kwargs)
+        env = make_vec_env(JointControlEnv if joint else PlanEnv, point.task, cfg.n_envs, run_seed=point.seed, **env_kwargs)
         try:
             if point.variant == "physics_gated":
                 env = success_gated(env)  # its close() closes the environments it wraps

@@ -29,6 +29,7 @@ from prl.export_schema import (
     DEFAULT_REPO_ID,
     FEATURES,
     NO_LABEL,
+    OPTIONAL_FEATURES,
     PER_EPISODE,
     SCENES_FILE,
     VIDEO_CAMERAS,
@@ -81,18 +82,24 @@ def validate_lerobot(root: Path | str, repo_id: str = DEFAULT_REPO_ID, *,
     """
     t0 = time.perf_counter()
     root = Path(root)
-    _precheck_files(root)
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy (torch, datasets): only to reload
-
-    try:
-        ds = LeRobotDataset(repo_id, root=root)
-    except Exception as exc:
-        raise ExportError(f"LeRobot could not load the dataset at {str(root)!r}: {type(exc).__name__}: {exc}") from exc
+    ds = load_local(root, repo_id)
     try:
         return _validate_loaded(ds, root, repo_id, expected, video, t0)
     finally:
         if drop_cache:
             drop_datasets_cache(ds)
+
+
+def load_local(root: Path, repo_id: str = DEFAULT_REPO_ID) -> Any:
+    """The dataset at ``root`` as lerobot's ``LeRobotDataset``, offline: ExportError (never a Hub download) when
+    ``root`` is no complete local v3.0 dataset or lerobot cannot load it."""
+    _precheck_files(root)
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset  # heavy (torch, datasets): only to reload
+
+    try:
+        return LeRobotDataset(repo_id, root=root)
+    except Exception as exc:
+        raise ExportError(f"LeRobot could not load the dataset at {str(root)!r}: {type(exc).__name__}: {exc}") from exc
 
 
 def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[EpisodeCheck] | None,
@@ -108,6 +115,8 @@ def _validate_loaded(ds: Any, root: Path, repo_id: str, expected: Sequence[Episo
         fail(f"codebase_version {version!r}, expected {CODEBASE_VERSION!r}")
     for name, spec in FEATURES.items():
         got = meta.features.get(name)
+        if got is None and name in OPTIONAL_FEATURES:
+            continue  # a dataset exported before the feature existed (what needs it says so: require_feature)
         if got is None:
             fail(f"feature {name!r} is missing")
         if got["dtype"] != spec["dtype"] or tuple(got["shape"]) != tuple(spec["shape"]):

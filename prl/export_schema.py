@@ -10,7 +10,8 @@ Frame layout (``FEATURES``, the one place where names, shapes and dtypes are dec
 feature                         shape        dtype  content
 ==============================  ===========  =====  ==============================================
 observation.state               (60,)        f32    qpos (30) | qvel (30)
-action                          (30,)        f32    joint drive targets
+observation.environment_state   (52,)        f32    tool, object, mechanism joints, moving bodies (``prl.env_state``)
+action                          (30,)        f32    joint targets held over the next 50 Hz step (``replay_actions``)
 observation.contact_force       (17,)        f32    sensor force per patch
 observation.contact_position    (51,)        f32    (17, 3) contact points, row-major
 observation.contact_normal      (51,)        f32    (17, 3) contact normals, row-major
@@ -52,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from prl.constants import JOINT_NAMES, N_JOINTS, N_SENSORS, RECORD_HZ, RS_DIMS, SENSOR_NAMES
+from prl.env_state import ENV_STATE_DIM, ENV_STATE_NAMES, environment_state
 
 CODEBASE_VERSION = "v3.0"
 """LeRobot dataset format written and accepted."""
@@ -80,6 +82,7 @@ FEATURES: dict[str, dict[str, Any]] = {
         "dtype": "float32", "shape": (2 * N_JOINTS,),
         "names": [f"{j}.pos" for j in JOINT_NAMES] + [f"{j}.vel" for j in JOINT_NAMES],
     },
+    "observation.environment_state": {"dtype": "float32", "shape": (ENV_STATE_DIM,), "names": list(ENV_STATE_NAMES)},
     "action": {"dtype": "float32", "shape": (N_JOINTS,), "names": [f"{j}.target" for j in JOINT_NAMES]},
     "observation.contact_force": {"dtype": "float32", "shape": (N_SENSORS,), "names": list(SENSOR_NAMES)},
     "observation.contact_position": {
@@ -224,7 +227,10 @@ def episode_frames(demo: Any, label: np.ndarray | None = None) -> dict[str, np.n
         raise ValueError(f"x_manip has shape {xm.shape}, expected {FEATURES['x_manip']['shape']}")
     out = {
         "observation.state": np.concatenate([arr("qpos", (N_JOINTS,)), arr("qvel", (N_JOINTS,))], axis=1),
-        "action": arr("target", (N_JOINTS,)),
+        "observation.environment_state": environment_state(
+            arr("tool_pose", (7,)), arr("object_pose", (7,)), _scene_array(demo, "scene_pose", t),
+            _scene_array(demo, "scene_qpos", t)),
+        "action": replay_actions(arr("target", (N_JOINTS,))),
         "observation.contact_force": arr("force", (N_SENSORS,)),
         "observation.contact_position": arr("contact_pos", (N_SENSORS, 3)).reshape(t, -1),
         "observation.contact_normal": arr("contact_normal", (N_SENSORS, 3)).reshape(t, -1),
@@ -246,6 +252,44 @@ def episode_frames(demo: Any, label: np.ndarray | None = None) -> dict[str, np.n
         if not np.all(np.isfinite(frames[name])):
             raise ValueError(f"feature {name!r} holds non-finite values")
     return frames
+
+
+OPTIONAL_FEATURES: tuple[str, ...] = ("observation.environment_state",)
+"""Features a dataset exported before they existed lacks: such a dataset still loads and validates, and what needs
+one of them says so (``require_feature``)."""
+
+
+def require_feature(info_features: Any, name: str, root: Path | str) -> None:
+    """ValueError naming ``name`` and the dataset ``root`` when the dataset's features (``meta/info.json``'s
+    ``features`` or a loaded dataset's ``features``) lack it: a dataset exported before it existed."""
+    if name not in info_features:
+        raise ValueError(f"the dataset at {str(root)!r} has no {name!r} feature (exported before it existed): "
+                         f"export it again from its demos")
+
+
+def replay_actions(target: np.ndarray) -> np.ndarray:
+    """The ``action`` stream of one demo from its recorded joint targets (T, 30), one row per record: row k is the
+    executor's target at record k + 1 (the last row keeps its own). Records are 5 physics frames apart, as are the
+    steps of a controller at the dataset's rate; the executor moves its targets every frame, and a controller that
+    interpolates its commands over each step (``envs.joint_env``) follows the executor's path when each command is
+    the target to reach at the step's end, the next record's. Replaying the rows one per step (``envs.replay``)
+    thus retraces the recorded states; it is the command sent at that frame in lerobot's sense, for a robot whose
+    controller runs at the dataset's fps and interpolates."""
+    target = np.asarray(target)
+    return np.concatenate([target[1:], target[-1:]], axis=0) if len(target) else target
+
+
+def _scene_array(demo: Any, name: str, t: int) -> np.ndarray:
+    """A demo's ``scene_pose`` or ``scene_qpos`` (``prl.demo.SCENE_ARRAYS``); ValueError naming it when the demo was
+    recorded before scenes were (the environment state cannot be built)."""
+    a = getattr(demo, name, None)
+    if a is None:
+        raise ValueError(f"the demo has no {name!r} array (recorded before scene parts were): "
+                         f"observation.environment_state cannot be exported from it")
+    a = np.asarray(a)
+    if a.shape[0] != t:
+        raise ValueError(f"array {name!r} has {a.shape[0]} frames, expected {t}")
+    return a
 
 
 def as_label(label: Sequence[int] | np.ndarray) -> np.ndarray:

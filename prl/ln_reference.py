@@ -12,7 +12,8 @@ A reference summary is one JSON object:
   plans' seed), ``procedure`` (``flows.ln_reference.REFERENCE_PROCEDURE``) and, with an RN, ``rn`` (its file name),
   ``rn_sha256`` (its bytes: an RN's file name is not keyed), ``pointnet`` (the PointNet's keyed file name) and
   ``n_points``;
-- ``code_version``: ``prl.version.outcome_version`` of the task, as the points';
+- ``code_version``: ``prl.version.outcome_version`` of the task for a plan-space method, as the plan points', and
+  ``code_files``, the digest of each of its files (``prl.version.outcome_file_digests``);
 - ``plans``: per plan kind (``REFERENCE_KINDS``: ``expert``, ``prior``, with an RN ``rn`` and, on a mixed variant,
   ``oracle`` and ``family <k> expert``) ``successes``,
   ``n``, ``ci95`` (Wilson) and ``outcomes``, one per scene (``seed``, ``plan``, ``success``, ``measure``,

@@ -11,7 +11,9 @@ on any machine:
 - ``settings``: everything else that decides the outcome (the LN's and SB3's parameters, the evaluation's scene
   seed and count, the plan environment's frames and points, the PointNet's keyed file name and the dataset's
   recipe, the flows' point procedure);
-- ``code_version`` (``prl.version.outcome_version`` of the task) and, recorded, ``dataset_digest``
+- ``code_version`` (``prl.version.outcome_version`` of the task and the point's method), ``code_files`` (the digest
+  of each file it covers, ``prl.version.outcome_file_digests``; summaries made before it lack it) and, recorded,
+  ``dataset_digest``
   (``demonstrations_digest`` of the task's demonstrations; null for joint control, which trains on none) and
   ``pointnet_sha256`` (the PointNet file's bytes);
 - ``eval``: ``successes``, ``n``, ``ci95`` (Wilson) and ``outcomes``, one per evaluation scene (``seed``, ``plan``,
@@ -37,13 +39,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from prl.atomic import write_atomic
+from prl.version import changed_files, outcome_file_digests, version_of
 
 DIGITS = 4
 """Decimals kept of every float in a summary (the curves' rates and losses; measures)."""
@@ -282,3 +285,38 @@ def demonstrations_digest(task: str, seeds: Sequence[int], plans: Sequence[Seque
     if extra:
         payload["extra"] = {k: np.asarray(extra[k], dtype=float).tolist() for k in sorted(extra)}
     return hashlib.sha256(json.dumps(payload, separators=(",", ":")).encode()).hexdigest()[:16]
+
+
+def stale_points(summaries: Mapping[str, Mapping[str, Any]],
+                 current_files: Callable[[str, str], dict[str, str]] = outcome_file_digests) -> dict[str, str]:
+    """``{name: why}`` of the summaries (points, or references by ``reference-<task>``) whose recorded ``code_version``
+    is not the current one of their task and method (``current_files(task, method)``, by default
+    ``prl.version.outcome_file_digests``): the files whose digests changed, named from the summary's
+    ``code_files``."""
+    out = {}
+    for name, s in summaries.items():
+        task = s["point"]["task"] if "point" in s else s["task"]
+        method = s["point"]["variant"] if "point" in s else "reference"
+        try:
+            current = current_files(task, method)
+        except FileNotFoundError:
+            out[name] = f"the task {task!r} has no module any more"
+            continue
+        if s["code_version"] == version_of(current):
+            continue
+        changed = changed_files(s.get("code_files"), current)
+        out[name] = ("code version differs (the summary records no per-file digests)" if changed is None
+                     else "changed: " + ", ".join(f"`{f}`" for f in changed))
+    return out
+
+
+def stale_section(stale: Mapping[str, str]) -> list[str]:
+    """The stale summaries, one row each with the files that changed since they were made."""
+    if not stale:
+        return [("No committed summary is stale: every point and reference above ran on today's code of its task and "
+                "method.")]
+    lines = [(f"{len(stale)} committed summaries ran on code that has changed since (`prl.version.outcome_version` of "
+             "their task and method): they are left out of every table and figure of this page and count as missing "
+             "below until they are run again."), "", "| summary | why |", "|---|---|"]
+    lines += [f"| {name} | {why} |" for name, why in sorted(stale.items())]
+    return lines

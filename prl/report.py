@@ -9,7 +9,9 @@ ranks successes above failures (``reward_table``); the compute; the
 provenance (code versions, dataset digests); and what of the planned experiment (``planned_points``) is missing.
 Beside each task's variants, the reference plans of ``reference-<task>.json`` (``prl.ln_reference``, written by
 ``python -m flows.ln_reference``: the expert plan, a prior-sampled plan and the RN's argmax plan on the points'
-evaluation scenes), with a flag when their scenes or code version are not the points'. The same summaries give the
+evaluation scenes), with a flag when their scenes or code version are not the points'. A summary whose recorded code
+version is not today's (``stale_points``: ``prl.version.outcome_version`` of its task and method) is left out of
+every table and figure and listed apart with the files that changed. The same summaries give the
 same bytes: no clock, fixed bootstrap seed, sorted orders, PNGs without the
 matplotlib version.
 """
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import datetime
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,7 @@ from prl.ln_reference import (
     reference_label,
     reference_seeds,
 )
-from prl.ln_summary import read_summaries
+from prl.ln_summary import read_summaries, stale_points, stale_section
 from prl.robust_stats import probability_of_improvement, stratified_bootstrap_ci
 from prl.stats import wilson_interval
 
@@ -45,7 +47,7 @@ PLAN_SEEDS: tuple[int, ...] = (0, 1, 2)
 """The seeds of every planned point."""
 HAMMER_EXTRA_K: tuple[int, ...] = (320, 640, 2560)
 """The hammer's further demonstration steps (the paper's ablation axis, beside 0 and 1,280)."""
-JOINT_FRAMES_PER_STEP = 10
+JOINT_FRAMES_PER_STEP = 5
 """Physics frames per joint-control step (``envs.joint_env.JOINT_FRAMES_PER_STEP``; a test keeps them equal): the
 equal-frames budget is the plan runs' frames over this."""
 BOOTSTRAP_REPS = 10_000
@@ -384,6 +386,8 @@ def compute_table(summaries: Mapping[str, Mapping[str, Any]]) -> list[str]:
         train = sum(s["train_seconds"] for s in members) / 3600.0
         ev = sum(s["eval_seconds"] for s in members) / 3600.0
         lines.append(f"| {name} | {len(members)} | {wall:.1f} | {cores:.1f} | {train:.1f} | {ev:.1f} |")
+    if not everything:
+        return lines
     first = min(s["started"] for s in everything)
     last = max(s["finished"] for s in everything)
     lines += ["", (f"The points ran between {first} and {last} (UTC); at least one point was running during "
@@ -504,7 +508,7 @@ HOW_TO_READ = (
 """The report's reading notes on its statistics."""
 FIG8_TEXT = (
     "Success rate over the last update's worth of episodes while training; mean over seeds with a min-max band; log "
-    "axes (a joint-control step is 10 physics frames, a plan episode about 770). Top: physics-guided K = 1,280 and "
+    f"axes (a joint-control step is {JOINT_FRAMES_PER_STEP} physics frames, a plan episode about 770). Top: physics-guided K = 1,280 and "
     "K = 0 against joint control; bottom: the demonstration steps and BC.")
 """What the report says of its figures."""
 REWARD_TEXT = (
@@ -517,7 +521,9 @@ REWARD_TEXT = (
     "failures are counted here with the measure they reached.")
 """What the report says of its reward table."""
 PROVENANCE_TEXT = (
-    "Each summary records the code version of what decides its task's outcome (`prl.version.outcome_version`), the "
+    "Each summary records the code version of what decides its outcome, for its task and method "
+    "(`prl.version.outcome_version`: the joint-control environment enters only the joint-space methods', the plan "
+    "environment and the export's readers only the plan-space methods'), each file's digest, the "
     "digest of its demonstrations, its settings and its MLflow run id (the store need not exist); a sweep re-runs a "
     "point whose summary differs from today's in any of them (`flows/ln_results.py`).")
 """What the report says of the summaries' provenance."""
@@ -531,10 +537,15 @@ REFERENCE_TEXT = (
 
 def render(summaries: Mapping[str, Mapping[str, Any]], results_rel: str, results_link: str,
            figure_links: Mapping[str, Sequence[str]],
-           references: Mapping[str, Mapping[str, Any]] | None = None) -> str:
+           references: Mapping[str, Mapping[str, Any]] | None = None, stale: Mapping[str, str] | None = None) -> str:
     """The report's markdown (see the module docstring): ``results_rel`` names the summaries' directory in the text
     and commands (relative to the repository), ``results_link`` and ``figure_links`` (each task's figures) are
-    relative to the report; ``references`` are the reference plans' summaries by task."""
+    relative to the report; ``references`` are the reference plans' summaries by task; ``stale`` the summaries
+    (``stale_points``: by point name, references by file stem) left out of everything but their own section."""
+    stale = dict(stale or {})
+    summaries = {k: v for k, v in summaries.items() if k not in stale}
+    references = {t: r for t, r in (references or {}).items() if reference_file_name(t).removesuffix(".json")
+                  not in stale}
     groups = grouped(summaries)
     eval_n = " or ".join(map(str, sorted({s["eval"]["n"] for s in summaries.values()})))
     intro = (f"Generated by `{COMMAND}` from the committed point summaries in [`{results_rel}/`]({results_link}/) "
@@ -551,6 +562,7 @@ def render(summaries: Mapping[str, Mapping[str, Any]], results_rel: str, results
              "## How to read it", "", points, HOW_TO_READ]
     if references:
         lines.append(REFERENCE_TEXT.format(results_rel=results_rel))
+    lines += ["", "## Stale summaries", "", *stale_section(stale)]
     lines += ["", "## Final success on unseen scenes", ""]
     lines += success_tables(groups, references)
     lines += ["## Across tasks", "", *across_tasks_table(groups), ""]
@@ -566,17 +578,23 @@ def render(summaries: Mapping[str, Mapping[str, Any]], results_rel: str, results
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def write_report(results_dir: Path, markdown: Path, figures_dir: Path, repo_root: Path | None = None) -> list[Path]:
+def write_report(results_dir: Path, markdown: Path, figures_dir: Path, repo_root: Path | None = None,
+                 find_stale: Callable[[Mapping[str, Mapping[str, Any]]], dict[str, str]] = stale_points) -> list[Path]:
     """Read every summary of ``results_dir`` (``prl.ln_summary.read_summaries``: errors name a missing directory or
     a malformed file) and its references (``prl.ln_reference.read_references``), draw the figures into ``figures_dir`` and write the report to ``markdown``; returns the
     files written. The report names the summaries' directory relative to ``repo_root`` (default: the checkout's)
-    and links its files relative to itself."""
+    and links its files relative to itself. ``find_stale`` (``stale_points`` against today's code) names the
+    summaries left apart."""
     summaries = read_summaries(results_dir)
     references = read_references(results_dir)
+    stale = find_stale({**summaries, **{reference_file_name(t).removesuffix(".json"): r
+                                          for t, r in references.items()}})
+    summaries = {k: v for k, v in summaries.items() if k not in stale}
     groups = grouped(summaries)
     figures = draw_figures(groups, figures_dir)
     here = Path(markdown).parent
     links = {task: [_rel(p, here) for p in paths] for task, paths in figures.items()}
-    text = render(summaries, _rel(results_dir, repo_root or REPO_ROOT), _rel(results_dir, here), links, references)
+    text = render(summaries, _rel(results_dir, repo_root or REPO_ROOT), _rel(results_dir, here), links, references,
+                  stale)
     write_atomic(Path(markdown), text)
     return [Path(markdown), *[p for paths in figures.values() for p in paths]]

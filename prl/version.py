@@ -27,36 +27,59 @@ def code_version() -> str:
 
 
 OUTCOME_SHARED_FILES: tuple[str, ...] = (
-    # the simulator side every task's LN point runs: the package (it registers the hand agent), the hand, the
-    # task base and registry, the plan executor and one plan episode's stepping, the LN's environments and the
-    # evaluation's trials (``run_policy``, ``run_joint_policy``)
+    # the simulator side every task's LN point runs, whatever its method: the package (it registers the hand agent),
+    # the hand, the task base and registry, the plan executor and one plan episode's stepping (the evaluation's
+    # trials import them), the LN's vector environments and the evaluation's trials
     "envs/__init__.py", "envs/agents/__init__.py", "envs/agents/prl_hand.py", "envs/hand_model.py", "envs/ik.py",
     "envs/sensors.py", "envs/tasks/__init__.py", "envs/tasks/base.py", "envs/executor.py", "envs/execution.py",
-    "envs/episode.py", "envs/scene_record.py", "envs/scene_stream.py", "envs/plan_env.py", "envs/joint_env.py",
-    "envs/vec_env.py", "envs/trials.py", "envs/reach.py",
-    # the LN and what it imports from the library (x: x_manip, text embedding, PointNet, its layout; the PLB;
-    # the executor's stages and label maths; the dataset readers of the demonstrations' x)
-    "prl/__init__.py", "prl/ln.py", "prl/features.py", "prl/demo.py", "prl/pointnet.py", "prl/rn.py",
-    "prl/text_embed.py", "prl/shapes.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py", "prl/labels.py",
-    "prl/stages.py", "prl/atomic.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py",
-    "prl/stats.py",  # the demonstrations' importance weights
+    "envs/episode.py", "envs/scene_record.py", "envs/scene_stream.py", "envs/vec_env.py", "envs/trials.py",
+    "envs/reach.py",
+    # the LN (A2C for every method) and what the above import from the library (the PLB, the executor's stages and
+    # label maths, the demo record)
+    "prl/__init__.py", "prl/ln.py", "prl/demo.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py",
+    "prl/labels.py", "prl/stages.py", "prl/atomic.py", "prl/shapes.py",  # the tasks build their meshes with it
 )
-"""Files that decide an LN point's outcome on every task, beside the task's own module and ``assets/``. Left out
-on purpose: ``prl/config.py`` (the LN's settings enter each summary's ``settings`` as values, so editing the
-pipeline's profiles does not invalidate results), ``flows/`` (orchestration and tracking; a change there to what
-a point computes bumps ``flows.ln_results.POINT_PROCEDURE``), other tasks' modules, the synthesis, its proposal and the red team
-(they make the dataset, which the summaries' ``dataset_digest`` and ``dataset`` recipe cover), docs and tests.
-``tests/prl/test_version.py`` checks this list against the modules these files import."""
+"""Files that decide an LN point's outcome on every task and for every method, beside the task's own module,
+``assets/`` and the method's own files (``OUTCOME_METHOD_FILES``). Left out on purpose: ``prl/config.py`` (the LN's
+settings enter each summary's ``settings`` as values, so editing the pipeline's profiles does not invalidate
+results), ``flows/`` (orchestration and tracking; a change there to what a point computes bumps
+``flows.ln_results.POINT_PROCEDURE``), other tasks' modules, the synthesis, its proposal, the export's writer and
+the red team (they make the dataset, which the summaries' ``dataset_digest`` and ``dataset`` recipe cover), docs and
+tests. ``tests/prl/test_version.py`` checks these lists against the modules their files import."""
+
+OUTCOME_METHOD_FILES: dict[str, tuple[str, ...]] = {
+    # plan-space methods: the plan environment and x (x_manip, text embedding, PointNet, the RN's layout of x), the
+    # demonstrations' readers (the export's schema and checks: what reads an export) and their importance weights
+    "plan": ("envs/plan_env.py", "prl/features.py", "prl/pointnet.py", "prl/rn.py", "prl/text_embed.py",
+             "prl/export_schema.py", "prl/env_state.py", "prl/export_check.py",
+             "prl/dataset_files.py", "prl/stats.py"),
+    # joint-space methods: the joint-control environment and the layout of its observation
+    "joint": ("envs/joint_env.py", "prl/env_state.py"),
+}
+"""Per method family (``method_family``), the files that decide its points' outcomes beyond ``OUTCOME_SHARED_FILES``:
+editing the joint-control environment leaves every plan-space point current, and the reverse."""
+
+JOINT_METHODS: frozenset[str] = frozenset({"joint", "joint_bc", "imitation"})
+"""Methods that act in joint space (``envs.joint_env``); every other method (``physics``, ``bc``, ``physics_gated``,
+the reference plans) acts in the plan space."""
 
 OUTCOME_ASSET_SUFFIXES: frozenset[str] = frozenset({".py", ".yaml", ".urdf", ".srdf"})
 """Files under ``assets/`` that enter ``outcome_version`` (the PLB catalogue, the hand model and its inputs)."""
 
 
-def outcome_files(task: str) -> tuple[str, ...]:
-    """The files (relative to the repository root, sorted) whose contents decide an LN point's outcome on
-    ``task``: ``envs/tasks/<task>.py`` and the task modules it imports (a variant's base task), ``OUTCOME_SHARED_FILES`` and ``assets/`` (``OUTCOME_ASSET_SUFFIXES``).
-    An explicit list: a module added later (another task, a variant of one) changes no task's files until one of
-    these imports it. FileNotFoundError naming a task without a module, or a listed file that is missing."""
+def method_family(method: str) -> str:
+    """``"joint"`` for a joint-space method (``JOINT_METHODS``), ``"plan"`` for any other LN method or reference."""
+    if not isinstance(method, str) or not method:
+        raise ValueError(f"method must be an LN method's name, got {method!r}")
+    return "joint" if method in JOINT_METHODS else "plan"
+
+
+def outcome_files(task: str, method: str = "physics") -> tuple[str, ...]:
+    """The files (relative to the repository root, sorted) whose contents decide an LN point's outcome on ``task``
+    with ``method``: ``envs/tasks/<task>.py`` and the task modules it imports (a variant's base task),
+    ``OUTCOME_SHARED_FILES``, the method family's ``OUTCOME_METHOD_FILES`` and ``assets/``
+    (``OUTCOME_ASSET_SUFFIXES``). An explicit list: a module added later (another task, a variant of one) changes no
+    task's files until one of these imports it. FileNotFoundError naming a task without a module."""
     if not isinstance(task, str) or not task.isidentifier():
         raise ValueError(f"task must be a task module's name, got {task!r}")
     own = f"envs/tasks/{task}.py"
@@ -64,7 +87,8 @@ def outcome_files(task: str) -> tuple[str, ...]:
         raise FileNotFoundError(f"task {task!r} has no module {own!r} under {REPO_ROOT}")
     assets = [p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "assets").rglob("*")
               if p.is_file() and p.suffix in OUTCOME_ASSET_SUFFIXES]
-    return tuple(sorted({*_task_modules(own), *OUTCOME_SHARED_FILES, *assets}))
+    family = OUTCOME_METHOD_FILES[method_family(method)]
+    return tuple(sorted({*_task_modules(own), *OUTCOME_SHARED_FILES, *family, *assets}))
 
 
 def _task_modules(own: str) -> set[str]:
@@ -84,13 +108,49 @@ def _task_modules(own: str) -> set[str]:
     return found
 
 
-def outcome_version(task: str) -> str:
-    """A digest (16 hex digits) of the names and bytes of ``outcome_files(task)``: what a committed LN summary of
-    ``task`` records as its ``code_version``. A change to the task's physics or success rule, the executor or the
-    LN changes it; a README, docs, tests, flows, another task's module or another variant's catalogue entry do
-    not (``catalogue_view``)."""
-    return source_version(*outcome_files(task), view=lambda rel, data: catalogue_view(data, task)
-                          if rel == PLB_CATALOGUE else data)
+def outcome_file_digests(task: str, method: str = "physics",
+                         read: Callable[[str], bytes | None] | None = None) -> dict[str, str]:
+    """``{file: digest}`` (16 hex digits of SHA-256) of ``outcome_files(task, method)``, the PLB catalogue as
+    ``task`` reads it (``catalogue_view``): what a committed LN summary records as its ``code_files``, so that a
+    stale summary names the files that changed. ``read(rel)``, when given, supplies a file's bytes (None: the file
+    did not exist, digest ``"-"``), e.g. from an earlier commit; by default the working tree's."""
+    out = {}
+    for rel in outcome_files(task, method):
+        data = (REPO_ROOT / rel).read_bytes() if read is None else read(rel)
+        if data is None:
+            out[rel] = "-"
+            continue
+        if rel == PLB_CATALOGUE:
+            data = catalogue_view(data, task)
+        out[rel] = hashlib.sha256(data).hexdigest()[:16]
+    return out
+
+
+def version_of(file_digests: dict[str, str]) -> str:
+    """The code version (16 hex digits) of ``{file: digest}`` (``outcome_file_digests``): one digest of the sorted
+    names and digests."""
+    h = hashlib.sha256()
+    for rel in sorted(file_digests):
+        h.update(f"{rel}\0{file_digests[rel]}\n".encode())
+    return h.hexdigest()[:16]
+
+
+def outcome_version(task: str, method: str = "physics") -> str:
+    """The code version of what decides an LN point's outcome on ``task`` with ``method``: ``version_of`` its
+    ``outcome_file_digests``, what a committed summary records as its ``code_version``. A change to the task's
+    physics or success rule, the executor or the LN changes it; the joint-control environment changes the
+    joint-space methods' versions only, the plan environment and the export's readers the plan-space methods'; a
+    README, docs, tests, flows, another task's module or another variant's catalogue entry change none."""
+    return version_of(outcome_file_digests(task, method))
+
+
+def changed_files(recorded: dict[str, str] | None, current: dict[str, str]) -> list[str] | None:
+    """The files whose digest differs between a summary's ``recorded`` ``code_files`` and ``current`` ones (added,
+    removed or edited), sorted; None for a summary that recorded none (the caller can say only that the version
+    differs)."""
+    if recorded is None:
+        return None
+    return sorted(f for f in {*recorded, *current} if recorded.get(f, "-") != current.get(f, "-"))
 
 
 PLB_CATALOGUE = DEFAULT_PLB_PATH.relative_to(REPO_ROOT).as_posix()

@@ -40,14 +40,19 @@ def test_plan_env_executes_one_plan_per_terminal_step(pointnet_path: Path) -> No
 
 
 @pytest.mark.sim
-def test_joint_env_takes_150_steps_of_10_frames() -> None:
-    from envs.joint_env import JointControlEnv
+def test_joint_env_takes_150_steps_of_5_frames_at_the_datasets_rate() -> None:
+    from envs.joint_env import JointControlEnv, observation_parts
+    from prl.env_state import ENV_STATE_DIM
 
     env = JointControlEnv("hammer", run_seed=1)
     try:
-        assert env.action_space.shape == (30,)
+        assert env.action_space.shape == (30,) and env.frames_per_step == 5 and env.steps == 150
         obs, _ = env.reset()
-        assert obs.shape == env.observation_space.shape and obs[-1] == 0.0
+        assert obs.shape == env.observation_space.shape == (60 + ENV_STATE_DIM + 1,) and obs[-1] == 0.0
+        u = env._env.unwrapped
+        parts = observation_parts(obs)
+        np.testing.assert_allclose(parts["observation.state"][:30], u.agent.named_qpos(), atol=1e-6)
+        np.testing.assert_allclose(parts["observation.environment_state"][:3], u.tool.pose.p[0].numpy(), atol=1e-6)
         rng = np.random.default_rng(0)
         total, dones = 0.0, []
         for _ in range(150):
@@ -55,10 +60,38 @@ def test_joint_env_takes_150_steps_of_10_frames() -> None:
             total += reward
             dones.append(terminated)
             assert not truncated
-        assert dones == [False] * 149 + [True]
-        assert env._env.unwrapped.elapsed_steps.item() * 5 == 1500 and info["frames"] == 1500
+        assert dones == [False] * 149 + [True] and info["frames"] == 750 and obs[-1] == 1.0
         assert total == pytest.approx(info["measure"], abs=1e-6)  # the return is the task's measure at the end
         with pytest.raises(ValueError, match="30 values"):
             env.step(np.zeros(29))
+    finally:
+        env.close()
+
+
+def _joints_outside_their_own_limits(targets_low: np.ndarray, targets_high: np.ndarray, robot: object) -> list[str]:
+    """The joints (``JOINT_NAMES`` order targets) whose -1 / +1 targets are not their own limits, looked up by name."""
+    from prl.constants import JOINT_NAMES
+
+    names = [j.name for j in robot.active_joints]
+    limits = robot.get_qlimits()[0].cpu().numpy()
+    return [n for i, n in enumerate(JOINT_NAMES) if not np.allclose(
+        [targets_low[i], targets_high[i]], limits[names.index(n)], atol=1e-6)]
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("task", ["hammer", "sweep", "unscrew", "tweeze"])
+def test_joint_actions_command_each_joint_in_its_own_range(task: str) -> None:
+    """-1 and +1 on every action component give each joint's own lower and upper limit, by name; the former mapping
+    (the articulation's limits in its own order, applied in ``JOINT_NAMES`` order) fails the same check."""
+    from envs.joint_env import JointControlEnv
+
+    env = JointControlEnv(task)
+    try:
+        robot = env._env.unwrapped.agent.robot
+        low, high = env.target_of(-np.ones(30)), env.target_of(np.ones(30))
+        assert _joints_outside_their_own_limits(low, high, robot) == []
+        old = robot.get_qlimits()[0].cpu().numpy()  # articulation order: what the env used to apply
+        wrong = _joints_outside_their_own_limits(old[:, 0], old[:, 1], robot)
+        assert len(wrong) >= 10 and "FFJ3" in wrong
     finally:
         env.close()

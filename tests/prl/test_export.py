@@ -63,6 +63,8 @@ def _synthetic_demo(seed: int, t: int):
         "object_pose": rng.normal(size=(t, 7)), "anchors_at_grasp": rng.normal(size=(6, 3)),
         "gv_center": np.zeros(3), "gv_half": np.ones(3), "gv_rot": np.eye(3), "tool_gv_local": np.zeros(9),
         "tool_fv_local": np.zeros(9), "x_manip": rng.normal(size=X_MANIP_DIM).astype(np.float32),
+        "scene_bodies": np.array(["hammer", "nail"]), "scene_pose": rng.normal(size=(t, 2, 7)),
+        "scene_joints": np.array(["nail/nail_joint"]), "scene_qpos": rng.normal(size=(t, 1)),
     }
     return Demo(task="hammer", seed=seed, text=f"{TEXT} ({seed})", success=True, outcome={}, scene_params={},
                 arrays=arrays)
@@ -486,7 +488,12 @@ def test_export_reload_matches_demos(tmp_path: Path, sim_demos: list[Path]) -> N
             assert int(item["episode_index"]) == e and int(item["frame_index"]) == k
             np.testing.assert_allclose(item["observation.state"].numpy(),
                                        np.concatenate([demo.qpos[k], demo.qvel[k]]), rtol=1e-6, atol=1e-6)
-            np.testing.assert_allclose(item["action"].numpy(), demo.target[k], rtol=1e-6, atol=1e-6)
+            # the target to reach by the end of the step: the next record's (the last keeps its own)
+            np.testing.assert_allclose(item["action"].numpy(), demo.target[min(k + 1, lengths[e] - 1)], rtol=1e-6,
+                                       atol=1e-6)
+            env_state = item["observation.environment_state"].numpy()
+            np.testing.assert_allclose(env_state[:7], demo.tool_pose[k], rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(env_state[14], demo.scene_qpos[k, 0], rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose(item["observation.contact_position"].numpy(),
                                        demo.contact_pos[k].reshape(-1), rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose(item["observation.tool_pose"].numpy(), demo.tool_pose[k], rtol=1e-6, atol=1e-6)

@@ -23,9 +23,15 @@ from prl.report import (
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "ln"
 
 
+def none_stale(summaries: object) -> dict[str, str]:
+    """The fixtures' code versions are made up: no summary is judged against today's code here (``test_stale_*``)."""
+    return {}
+
+
 def make(tmp_path: Path, name: str = "a") -> tuple[bytes, dict[str, bytes]]:
     out = tmp_path / name
-    written = write_report(FIXTURES, out / "docs" / "results.md", out / "docs" / "results", repo_root=tmp_path)
+    written = write_report(FIXTURES, out / "docs" / "results.md", out / "docs" / "results", repo_root=tmp_path,
+                           find_stale=none_stale)
     return written[0].read_bytes(), {p.name: p.read_bytes() for p in written[1:]}
 
 
@@ -56,7 +62,8 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
     assert "| hammer | physics K=1280: 2; bc K=1280: 1,2; physics K=0: 1,2; joint control: 1,2; " in text
     assert "| sweep | physics K=1280: 0,1,2; bc K=1280: 0,1,2;" in text
     assert "![hammer: Fig 8 against timesteps](results/fig8_hammer_timesteps.png)" in text
-    assert "Equal-frames joint-control steps: hammer: 246,400;" in text  # 3,200 x 770 frames / 10 per step
+    assert "Equal-frames joint-control steps: hammer: 492,800;" in text  # 3,200 x 770 frames / 5 per step
+    assert "No committed summary is stale" in text
     assert "/tmp" not in text and str(tmp_path) not in text
 
 
@@ -67,12 +74,12 @@ def test_the_plan_and_what_is_missing() -> None:
     missing = missing_points(summaries, plan)
     assert len(plan) - len(missing) == 5
     joint = next(s for s in summaries.values() if s["point"]["variant"] == "joint")
-    longer = {**joint, "timesteps": 246_400}
+    longer = {**joint, "timesteps": 492_800}
     assert not any(p.equal_frames for p in plan if p.done_by(joint))
     assert [p.equal_frames for p in plan if p.done_by(longer)] == [True]
     groups = grouped(summaries)
     assert [g.label for g in groups] == ["physics K=0", "physics K=1280", "bc K=1280", "joint control"]
-    assert equal_frames_budget(groups, "hammer") == 246_400 and equal_frames_budget(groups, "sweep") is None
+    assert equal_frames_budget(groups, "hammer") == 492_800 and equal_frames_budget(groups, "sweep") is None
     assert PAPER_TIMESTEPS == 3200
     assert elapsed_hours([]) == 0.0
 
@@ -126,7 +133,7 @@ def test_a_reference_on_other_scenes_or_code_is_flagged(tmp_path: Path) -> None:
     write_reference(tmp_path / "ln", {**sweep, "plans": {k: v for k, v in sweep["plans"].items() if k != "rn"},
                                       "settings": {k: v for k, v in sweep["settings"].items() if k != "rn"}})
     md = tmp_path / "out" / "results.md"
-    write_report(tmp_path / "ln", md, tmp_path / "out" / "fig", repo_root=tmp_path)
+    write_report(tmp_path / "ln", md, tmp_path / "out" / "fig", repo_root=tmp_path, find_stale=none_stale)
     text = md.read_text()
     assert ("executed on the 4 scenes of eval seed 1 (scene seeds 10001000 to 10001003); the RN is `rn-seed0.pt`. "
             "**Not the points' scenes**: the points ran on 4 scenes of eval seed 0. **Another code version**: the "
@@ -219,3 +226,39 @@ def test_the_reward_table_counts_failures_paid_like_a_success() -> None:
     assert rows[2] == "| sweep | 2 | 1 | 5.00 | 3.00 | 0 | - |"
     assert rows[3] == ("| unscrew | 5 | 2 | 23.50 | 120.00 | 2 "
                        "| physics K=1280 s2: 1, joint control s1: 1 |")
+
+
+def test_stale_summaries_are_listed_apart_with_the_files_that_changed(tmp_path: Path) -> None:
+    """A summary whose recorded code version is not today's for its task and method leaves every table and counts as
+    missing; the report names the files whose digests changed. Today's files are made up here: the shared ones,
+    and a joint-control environment that differs from the one the joint point recorded."""
+    from functools import partial
+
+    from prl.ln_summary import stale_points, summary_bytes
+    from prl.version import version_of
+
+    def today(task: str, method: str) -> dict[str, str]:
+        own = {"envs/joint_env.py": "new"} if method in ("joint", "imitation") else {"envs/plan_env.py": "p"}
+        return {"envs/executor.py": "e", f"envs/tasks/{task}.py": "t", **own}
+
+    shutil.copytree(FIXTURES, tmp_path / "ln")
+    for path in (tmp_path / "ln").glob("*.json"):
+        s = json.loads(path.read_text())
+        task, method = (s["point"]["task"], s["point"]["variant"]) if "point" in s else (s["task"], "reference")
+        files = {**today(task, method), **({"envs/joint_env.py": "old"} if method == "joint" else {})}
+        path.write_bytes(summary_bytes({**s, "code_files": files, "code_version": version_of(files)}))
+    md = tmp_path / "out" / "results.md"
+    write_report(tmp_path / "ln", md, tmp_path / "out" / "fig", repo_root=tmp_path,
+                 find_stale=partial(stale_points, current_files=today))
+    text = md.read_text()
+    assert "| ln-hammer-joint-k0-seed0-t3200 | changed: `envs/joint_env.py` |" in text
+    assert "1 committed summaries ran on code that has changed since" in text
+    assert "| joint control | 0 |" not in text  # out of the tables
+    assert "| physics K=1280 | 0,1 | 4/4, 3/4 | 7/8 = 0.88 (0.53-0.98) |" in text  # the current points stay
+    assert "joint control: 0,1,2;" in text  # the stale point is missing again
+    summaries = read_summaries(tmp_path / "ln")
+    assert stale_points(summaries, current_files=today) == {
+        "ln-hammer-joint-k0-seed0-t3200": "changed: `envs/joint_env.py`"}
+    old = {k: {**v, "code_files": None} for k, v in summaries.items()}
+    assert set(stale_points(old, current_files=today).values()) == {
+        "code version differs (the summary records no per-file digests)"}

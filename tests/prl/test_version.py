@@ -11,16 +11,29 @@ import pytest
 from prl import version
 from prl.config import known_tasks
 from prl.constants import REPO_ROOT, TASKS
-from prl.version import OUTCOME_SHARED_FILES, outcome_files, outcome_version
+from prl.version import (
+    OUTCOME_METHOD_FILES,
+    OUTCOME_SHARED_FILES,
+    changed_files,
+    method_family,
+    outcome_file_digests,
+    outcome_files,
+    outcome_version,
+    version_of,
+)
 
 LEFT_OUT = {"prl/config.py", "envs/tasks/grasp_probe.py"}
 """Modules the listed files import that do not decide an outcome (see ``OUTCOME_SHARED_FILES``' docstring)."""
+LEFT_OUT_JOINT = {"prl/features.py"}
+"""Left out of the joint-space methods' files: ``prl/ln.py`` imports it in its plan-space helpers alone (the x of
+the demonstrations and of a scene), which a joint-space point never calls."""
 
 
 @pytest.fixture()
 def tree(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A checkout's layout with placeholder contents, which ``prl.version`` takes for the repository."""
-    for rel in [*OUTCOME_SHARED_FILES, *(f"envs/tasks/{t}.py" for t in TASKS), "assets/plb.yaml",
+    for rel in [*OUTCOME_SHARED_FILES, *(f for files in OUTCOME_METHOD_FILES.values() for f in files),
+                *(f"envs/tasks/{t}.py" for t in TASKS), "assets/plb.yaml",
                 "assets/hand/prl_hand.urdf", "README.md", "docs/results.md", "flows/ablation.py",
                 "envs/synthesis.py", "tests/prl/test_x.py"]:
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -89,6 +102,46 @@ def test_a_new_asset_changes_every_task_and_an_unknown_task_is_named(tree: Path)
         outcome_files("../README")
 
 
+def test_each_methods_own_files_change_its_versions_only(tree: Path) -> None:
+    """The joint-control environment decides the joint-space methods' outcomes alone, the plan environment and the
+    export's readers the plan-space methods' alone; the shared executor both."""
+    def all_versions() -> dict[tuple[str, str], str]:
+        return {(t, m): outcome_version(t, m) for t in TASKS for m in ("physics", "bc", "reference", "joint",
+                                                                        "joint_bc", "imitation")}
+
+    before = all_versions()
+    (tree / "envs/joint_env.py").write_text("# the joint limits looked up by name\n")
+    after = all_versions()
+    assert {k for k in before if before[k] != after[k]} == {(t, m) for t in TASKS
+                                                            for m in ("joint", "joint_bc", "imitation")}
+    for rel in ("envs/plan_env.py", "prl/export_schema.py"):
+        before = all_versions()
+        (tree / rel).write_text(f"# {rel}, edited\n")
+        after = all_versions()
+        assert {k for k in before if before[k] != after[k]} == {(t, m) for t in TASKS
+                                                                for m in ("physics", "bc", "reference")}
+    before = all_versions()
+    (tree / "envs/executor.py").write_text("# shared\n")
+    assert all(v != before[k] for k, v in all_versions().items())
+    assert method_family("physics_gated") == "plan" and method_family("imitation") == "joint"
+    with pytest.raises(ValueError, match="method must be an LN method's name"):
+        outcome_files("hammer", "")
+
+
+def test_file_digests_name_what_changed(tree: Path) -> None:
+    """A summary's ``code_files`` make its ``code_version``, and name the files edited, added or removed since."""
+    files = outcome_file_digests("sweep", "joint")
+    assert version_of(files) == outcome_version("sweep", "joint")
+    assert set(files) == set(outcome_files("sweep", "joint")) and "envs/plan_env.py" not in files
+    (tree / "envs/joint_env.py").write_text("# edited\n")
+    (tree / "assets/hand/new_part.yaml").write_text("a: 1\n")
+    now = outcome_file_digests("sweep", "joint")
+    assert changed_files(files, now) == ["assets/hand/new_part.yaml", "envs/joint_env.py"]
+    assert changed_files(files, files) == [] and changed_files(None, now) is None
+    gone = outcome_file_digests("sweep", "joint", read=lambda rel: None if rel == "envs/joint_env.py" else b"x")
+    assert gone["envs/joint_env.py"] == "-" and version_of(gone) != version_of(now)
+
+
 CATALOGUE = b"""dimensions:
   - name: kinematic_motion
 tasks:
@@ -152,11 +205,13 @@ def _imports(rel: str) -> set[str]:
     return found
 
 
+@pytest.mark.parametrize("method", ["physics", "joint"])
 @pytest.mark.parametrize("task", known_tasks())
-def test_the_list_holds_everything_its_modules_import(task: str) -> None:
+def test_the_list_holds_everything_its_modules_import(task: str, method: str) -> None:
     """Every project module the listed ones import, at any depth, is listed too, or left out on purpose (another
-    task's module is never reached: the registry's import of the tasks is the one exception)."""
-    listed = set(outcome_files(task))
+    task's module is never reached: the registry's import of the tasks is the one exception); for each method
+    family apart, so that the joint-control environment is not reached from the plan space's files."""
+    listed = set(outcome_files(task, method))
     others = {f"envs/tasks/{t}.py" for t in known_tasks()} - listed
     unlisted, todo, seen = set(), [f for f in listed if f.endswith(".py")], set()
     while todo:
@@ -167,7 +222,7 @@ def test_the_list_holds_everything_its_modules_import(task: str) -> None:
         for dep in _imports(rel):
             if dep in listed:
                 todo.append(dep)
-            elif dep not in LEFT_OUT and not (dep in others and rel == "envs/tasks/__init__.py"):
+            elif dep not in LEFT_OUT and not (method == "joint" and dep in LEFT_OUT_JOINT) and not (dep in others and rel == "envs/tasks/__init__.py"):
                 unlisted.add(f"{dep} (imported by {rel})")
     assert sorted(unlisted) == []
     assert not any(f in listed for f in others)

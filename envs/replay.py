@@ -1,0 +1,183 @@
+"""Replay an exported dataset's ``action`` stream open-loop in the task's joint-control environment, as
+``lerobot-replay`` sends a dataset episode to a robot: does each episode reproduce its recorded outcome?
+
+For each chosen episode: the task's scene is rebuilt from the episode's scene seed (``meta/prl_scenes.jsonl``), the
+joint-control environment (``envs.joint_env``, the dataset's 50 Hz) runs the observation phase, then each row's
+``action`` is held for one step, the task being told of each recorded stage as it starts (a measure that counts
+from a stage, the unscrew's turn, counts as when the demo was recorded). Reported per episode: the task's success
+and measure at the end against the recorded ones, and the largest joint-position deviation from the recorded
+``observation.state`` (the replay's state after step k against the recorded row k + 1, the records being one
+physics frame later than the step ends: ``prl.export_schema.replay_actions``).
+
+    prl-replay --dataset-root outputs/datasets/hammer-seed0 --episodes-per-task 50 --out docs/replay.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from prl.constants import N_JOINTS
+from prl.export_schema import read_scenes
+from prl.stages import STAGES
+
+
+@dataclass(frozen=True)
+class ReplayOutcome:
+    """One episode replayed."""
+
+    episode_index: int
+    task: str
+    seed: int
+    recorded_success: bool
+    success: bool
+    recorded_measure: float
+    measure: float
+    max_joint_deviation: float
+    """Largest |qpos - recorded qpos| over the episode's rows and joints (m for the arm's slides, rad otherwise)."""
+    error: str = ""
+
+    @property
+    def reproduced(self) -> bool:
+        """The replay's success equals the recorded one."""
+        return self.success == self.recorded_success and not self.error
+
+
+def episode_columns(root: Path | str, names: Sequence[str] = ("action", "observation.state", "stage")
+                    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """``({feature: (N, width) array}, episode starts (E + 1,))`` of an exported dataset, read with lerobot's
+    ``LeRobotDataset`` offline. ExportError (``prl.export_check``) when ``root`` is no complete dataset."""
+    from prl.export_check import load_local  # heavy: lerobot
+
+    ds = load_local(Path(root))
+    table = ds.hf_dataset.data
+    n = table.num_rows
+    cols = {}
+    for name in names:
+        col = table.column(name).combine_chunks()
+        cols[name] = (col.flatten() if hasattr(col, "flatten") else col).to_numpy().reshape(n, -1)
+    lengths = np.asarray(ds.meta.episodes["length"], dtype=np.int64)
+    return cols, np.concatenate([[0], np.cumsum(lengths)])
+
+
+def replay_episode(env: Any, seed: int, actions: np.ndarray, states: np.ndarray, stages: np.ndarray
+                   ) -> tuple[bool, float, float]:
+    """(success, measure, largest joint deviation) of ``actions`` (T, 30) held one step each on the scene of
+    ``seed`` in ``env`` (a ``JointControlEnv`` with T steps), against the recorded ``states`` (T, 60)."""
+    env.reset(options={"scene_seed": int(seed)})
+    deviation, info, last_stage = 0.0, {}, -1
+    for k in range(len(actions)):
+        if int(stages[k]) != last_stage:
+            last_stage = int(stages[k])
+            env.on_stage_start(STAGES[last_stage])
+        obs, _, done, _, info = env.step_target(actions[k])
+        if k + 1 < len(actions):
+            deviation = max(deviation, float(np.max(np.abs(obs[:N_JOINTS] - states[k + 1, :N_JOINTS]))))
+        if done:
+            break
+    if info.get("error"):
+        raise RuntimeError(info["error"])
+    return bool(info["success"]), float(info["measure"]), deviation
+
+
+def choose_episodes(scenes: Sequence[dict[str, Any]], per_task: int, tasks: Sequence[str] | None = None) -> list[int]:
+    """The first ``per_task`` episode indices of each task (of ``tasks``, or every task of the dataset) in episode
+    order. ValueError naming a task the dataset does not hold."""
+    held = sorted({s["task"] for s in scenes})
+    for task in tasks or ():
+        if task not in held:
+            raise ValueError(f"the dataset holds no {task!r} episode (it holds {', '.join(held)})")
+    wanted = set(tasks or held)
+    counts: dict[str, int] = {}
+    chosen = []
+    for s in scenes:
+        if s["task"] in wanted and counts.get(s["task"], 0) < per_task:
+            counts[s["task"]] = counts.get(s["task"], 0) + 1
+            chosen.append(int(s["episode_index"]))
+    return chosen
+
+
+def replay_dataset(root: Path | str, per_task: int = 50, tasks: Sequence[str] | None = None,
+                   progress: bool = True) -> list[ReplayOutcome]:
+    """Replay the first ``per_task`` episodes of each task of the dataset at ``root``; one ``ReplayOutcome`` each."""
+    from envs.joint_env import JointControlEnv  # heavy: loads the simulator
+
+    scenes = read_scenes(root)
+    chosen = choose_episodes(scenes, per_task, tasks)
+    cols, starts = episode_columns(root)
+    envs: dict[str, JointControlEnv] = {}
+    out = []
+    try:
+        for i in tqdm(chosen, desc="replaying episodes", unit="episode", disable=not progress):
+            scene, lo, hi = scenes[i], int(starts[i]), int(starts[i + 1])
+            task = scene["task"]
+            env = envs.get(task)
+            if env is None or env.steps != hi - lo:
+                if env is not None:
+                    env.close()
+                env = envs[task] = JointControlEnv(task, steps=hi - lo)
+            recorded = scene.get("outcome") or {}
+            key = env.measure_key
+            try:
+                success, measure, dev = replay_episode(env, scene["seed"], cols["action"][lo:hi],
+                                                       cols["observation.state"][lo:hi], cols["stage"][lo:hi, 0])
+                error = ""
+            except Exception as exc:  # noqa: BLE001 - one episode's error is reported, not fatal
+                success, measure, dev, error = False, float("nan"), float("nan"), f"{type(exc).__name__}: {exc}"
+                env.close()
+                envs.pop(task)
+            out.append(ReplayOutcome(episode_index=i, task=task, seed=int(scene["seed"]),
+                                     recorded_success=bool(recorded.get("success", False)), success=success,
+                                     recorded_measure=float(recorded.get(key, float("nan"))), measure=measure,
+                                     max_joint_deviation=dev, error=error))
+    finally:
+        for env in envs.values():
+            env.close()
+    return out
+
+
+def replay_table(outcomes: Sequence[ReplayOutcome]) -> list[str]:
+    """Markdown rows per task: episodes, reproduced (share), median and largest joint deviation."""
+    lines = ["| task | episodes | reproduced | share | joint deviation, median | largest |", "|---|---|---|---|---|---|"]
+    for task in sorted({o.task for o in outcomes}):
+        rows = [o for o in outcomes if o.task == task]
+        devs = np.array([o.max_joint_deviation for o in rows], dtype=float)
+        ok = sum(o.reproduced for o in rows)
+        lines.append(f"| {task} | {len(rows)} | {ok} | {ok / len(rows):.2f} | {np.nanmedian(devs):.4f} | "
+                     f"{np.nanmax(devs):.4f} |")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="prl-replay", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dataset-root", required=True, type=Path, help="an exported LeRobot dataset's root")
+    parser.add_argument("--episodes-per-task", type=int, default=50, help="first episodes replayed per task (50)")
+    parser.add_argument("--tasks", default="", help="comma-separated tasks of the dataset (default: all)")
+    parser.add_argument("--out", type=Path, default=None, help="write the table (markdown) and the outcomes (JSON "
+                        "beside it, same name with .json) here")
+    args = parser.parse_args(argv)
+    if args.episodes_per_task < 1:
+        parser.error(f"--episodes-per-task must be >= 1, got {args.episodes_per_task}")
+    tasks = [t for t in args.tasks.split(",") if t] or None
+    outcomes = replay_dataset(args.dataset_root, args.episodes_per_task, tasks)
+    table = replay_table(outcomes)
+    print("\n".join(table))
+    for o in outcomes:
+        if not o.reproduced:
+            print(f"episode {o.episode_index} ({o.task}, seed {o.seed}): recorded success {o.recorded_success} "
+                  f"(measure {o.recorded_measure:.3f}), replayed {o.success} ({o.measure:.3f}){' ' + o.error if o.error else ''}")
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text("\n".join(table) + "\n")
+        args.out.with_suffix(".json").write_text(json.dumps([asdict(o) for o in outcomes], indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
