@@ -211,3 +211,26 @@ def run_joint_policy(task: str, policy: Any, seeds: list[int], randomization: fl
     finally:
         env.close()
     return out
+
+
+def run_target_policy(task: str, actor: Any, seeds: list[int], randomization: float = 1.0,
+                      progress: bool = True) -> list[Any]:
+    """A policy that acts in joint targets (``actor(state, environment_state)`` -> 30 targets, ``actor.reset()`` at
+    each episode's start: ``prl.imitation.ImitationActor``) for one episode on the scene of each seed, closed loop
+    at the dataset's rate; one ``envs.trials.TrialOutcome`` each (plan ``()``), success by the task's own rule."""
+    env = JointControlEnv(task, randomization=randomization)
+    out = []
+    try:
+        for seed in tqdm(seeds, desc=f"{task} joint-space rollouts", disable=not progress, unit="episode"):
+            obs, _ = env.reset(options={"scene_seed": int(seed)})
+            actor.reset()
+            done, info = False, {}
+            while not done:
+                parts = observation_parts(obs)
+                target = actor(parts["observation.state"], parts["observation.environment_state"])
+                obs, _, done, _, info = env.step_target(target)
+            out.append(TrialOutcome(task=task, seed=int(seed), plan=(), success=bool(info["success"]),
+                                    measure=float(info["measure"]), fail=bool(info["error"]), error=info["error"]))
+    finally:
+        env.close()
+    return out

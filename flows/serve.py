@@ -10,6 +10,8 @@ process registers the deployments and executes their runs; trigger one with e.g.
     prefect deployment run 'prl-rn-eval/default' --param rn_path=/tmp/rnrun/models/rn-seed0.pt
     prefect deployment run 'prl-ln-ablation/default' --param dataset_root=outputs/datasets/hammer-seed0 \
         --param pointnet_path=outputs/models/pointnet-<key>.pt --param overrides='{"seeds": [0, 1, 2]}'
+    prefect deployment run 'prl-imitation/default' --param dataset_root=outputs/datasets/hammer-seed0 \
+        --param overrides='{"steps": 2000}'
 
 ``overrides`` are the fields of ``prl.config.PipelineConfig`` / ``AblationConfig`` (the LN's nested under
 ``ln``), named like the command line's flags (``--demos-per-task`` is ``demos_per_task``, ``--ln-timesteps``
@@ -26,6 +28,7 @@ from prefect import serve
 from flows.ablation import ablation
 from flows.evaluate_rn import evaluate_rn
 from flows.full_pipeline import full_pipeline
+from flows.imitation import imitation
 
 
 def main() -> None:
@@ -42,6 +45,10 @@ def main() -> None:
         ablation.to_deployment(name="default", description="The LN ablation sweep (Fig 8): dataset_root and "
                                "pointnet_path required; overrides: AblationConfig fields (tasks, variants, "
                                "demo_steps, seeds, eval_scenes, workers, ..., ln: {timesteps, ...})."),
+        imitation.to_deployment(name="default", description="A LeRobot policy (ACT) trained on a dataset's demos "
+                                "of one task and rolled out in the joint-control environment: dataset_root "
+                                "required; task_name, demos, eval_seed, eval_scenes, output_dir; overrides: "
+                                "ImitationConfig fields (steps, batch_size, chunk_size, ...)."),
     )
 
 

@@ -54,7 +54,8 @@ def test_quick_pipeline_deployment_runs_on_a_prefect_server(tmp_path: Path) -> N
         _wait(lambda: urllib.request.urlopen(f"{api}/health", timeout=2).status == 200, 180, "the Prefect server", procs)
         procs.append(subprocess.Popen([sys.executable, "-m", "flows.serve"], cwd=REPO, env=env,
                                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
-        names = ("prl-full-pipeline/quick", "prl-full-pipeline/paper", "prl-rn-eval/default", "prl-ln-ablation/default")
+        names = ("prl-full-pipeline/quick", "prl-full-pipeline/paper", "prl-rn-eval/default", "prl-ln-ablation/default",
+                 "prl-imitation/default")
 
         def served() -> bool:
             req = urllib.request.Request(f"{api}/deployments/filter", data=b"{}", method="POST",

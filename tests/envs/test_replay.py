@@ -1,0 +1,98 @@
+"""A dataset's ``action`` stream replayed open loop in the joint-control environment reproduces its demos, and a
+LeRobot policy (ACT) trains on the dataset offline and acts in that environment (``envs.replay``,
+``prl.imitation``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+TASKS = ("hammer", "unscrew")
+SEEDS = (11, 12)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dataset of the expert plan's full-length episodes on two scenes of each of ``TASKS``."""
+    pytest.importorskip("mani_skill")
+    from envs.executor import PlanExecutor
+    from envs.tasks import make_env, task_class
+    from prl.demo import from_episode, save_demo
+    from prl.export import export_lerobot
+    from prl.plb import load_plb
+
+    out = tmp_path_factory.mktemp("replay")
+    paths = []
+    for task in TASKS:
+        env = make_env(task)
+        try:
+            executor = PlanExecutor(env)
+            for seed in SEEDS:
+                result = executor.run(task_class(task).expert_plan, seed=seed)
+                demo = from_episode(task, seed, load_plb().texts(task)[0], result, env)
+                paths.append(save_demo(demo, out / "demos" / f"{task}-{seed}.npz"))
+        finally:
+            env.close()
+    export_lerobot(paths, out / "ds", repo_id="prl/replay-test")
+    return out / "ds"
+
+
+@pytest.mark.sim
+def test_replayed_actions_reproduce_the_demos(dataset: Path) -> None:
+    from envs.replay import replay_dataset, replay_table
+
+    outcomes = replay_dataset(dataset, per_task=2, progress=False)
+    assert [(o.task, o.seed) for o in outcomes] == [(t, s) for t in TASKS for s in SEEDS]
+    assert all(o.recorded_success for o in outcomes)  # the expert succeeds on these scenes
+    assert all(o.reproduced for o in outcomes), outcomes
+    for o in outcomes:  # the same measure within 25 %, every joint within 0.3 rad (or m) of the record at all times
+        assert o.measure == pytest.approx(o.recorded_measure, rel=0.25), o
+        assert o.max_joint_deviation < 0.3, o
+    assert "| hammer | 2 | 2 | 1.00 |" in "\n".join(replay_table(outcomes))
+
+
+@pytest.mark.sim
+def test_unknown_task_in_a_replay_is_named(dataset: Path) -> None:
+    from envs.replay import replay_dataset
+
+    with pytest.raises(ValueError, match="holds no 'sweep' episode"):
+        replay_dataset(dataset, per_task=1, tasks=["sweep"], progress=False)
+
+
+def test_imitation_config_names_bad_values() -> None:
+    from prl.imitation import ImitationConfig, policy_config
+
+    with pytest.raises(ValueError, match="policy must be one of"):
+        ImitationConfig(policy="diffusion")
+    with pytest.raises(ValueError, match="n_action_steps \\(30\\) must not exceed chunk_size \\(25\\)"):
+        ImitationConfig(n_action_steps=30)
+    with pytest.raises(ValueError, match="steps must be an integer >= 1, got 0"):
+        ImitationConfig(steps=0)
+    old = {"observation.state": {"shape": [60]}, "action": {"shape": [30]}}  # exported before environment_state
+    with pytest.raises(ValueError, match="no 'observation.environment_state' feature"):
+        policy_config(ImitationConfig(), old)
+
+
+@pytest.mark.sim
+@pytest.mark.train
+def test_act_trains_on_the_dataset_and_acts_in_the_joint_env(dataset: Path, tmp_path: Path) -> None:
+    from envs.joint_env import run_target_policy
+    from prl.imitation import ImitationActor, ImitationConfig, task_episodes, train_imitation
+
+    cfg = ImitationConfig(steps=4, batch_size=8, dim_model=64, dim_feedforward=128, n_heads=4, log_every=2)
+    episodes = task_episodes(dataset, "hammer")
+    assert episodes == [0, 1]
+    result = train_imitation(dataset, cfg, tmp_path / "im", episodes, progress=False)
+    assert [r["step"] for r in result.losses] == [2.0, 4.0] and all(np.isfinite(r["loss"]) for r in result.losses)
+    assert result.frames == 2 * 150
+    saved = sorted(p.name for p in result.policy_dir.iterdir())
+    assert "model.safetensors" in saved and "config.json" in saved and not any(p.endswith(".pkl") for p in saved)
+    actor = ImitationActor(result.policy_dir)
+    targets = actor(np.zeros(60), np.zeros(52))
+    assert targets.shape == (30,) and np.all(np.isfinite(targets))
+    (outcome,) = run_target_policy("hammer", actor, [10_000_000], progress=False)
+    assert outcome.error == "" and isinstance(outcome.success, bool) and np.isfinite(outcome.measure)
+    with pytest.raises(FileNotFoundError, match="no trained policy"):
+        ImitationActor(tmp_path / "nowhere")
