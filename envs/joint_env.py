@@ -86,8 +86,7 @@ class JointControlEnv(SceneStream, gym.Env):
         self._measure = 0.0
 
     def _build(self) -> None:
-        self._env = make_env(self.task, control_mode="pd_joint_pos",
-                             randomization=self.randomization)
+        self._env = make_env(self.task, control_mode="pd_joint_pos", randomization=self.randomization)
         u = self._env.unwrapped
         controller = u.agent.controller
         names = tuple(j.name for j in controller.joints)
@@ -96,11 +95,6 @@ class JointControlEnv(SceneStream, gym.Env):
         space = controller.single_action_space  # the controlled joints' own limits, in JOINT_NAMES order
         self._low = np.asarray(space.low, np.float64).reshape(-1)
         self._high = np.asarray(space.high, np.float64).reshape(-1)
-
-    @property
-    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) of each joint's target, ``JOINT_NAMES`` order."""
-        return self._low.copy(), self._high.copy()
 
     def target_of(self, action: Any) -> np.ndarray:
         """The joint targets (30, ``JOINT_NAMES`` order) of an action in [-1, 1]^30 (clipped): -1 is each joint's
@@ -128,12 +122,13 @@ class JointControlEnv(SceneStream, gym.Env):
         self._env.unwrapped.reset(seed=self.scene_seed)
         u = self._env.unwrapped
         self._joints = [u.agent.robot._objs[0].get_active_joints()[i] for i in u.agent.joint_perm]
-        self._observe_frames = ExecutorConfig().at_rate(u.sim_freq).observe_frames
-        for _ in range(2):  # as the plan executor: hold the pose through the observation phase, then the measured
-            self._written = np.full(N_JOINTS, np.nan)  # pose through the plan's first frame (every drive written)
+        # as the plan executor: hold the pose through the observation phase, then the measured pose through the plan's
+        # first frame, every drive written each time
+        for frames in (ExecutorConfig().at_rate(u.sim_freq).observe_frames, 1):
+            self._written = np.full(N_JOINTS, np.nan)
             self._target = u.agent.named_qpos()
             self._write(self._target)
-            for _ in range(self._observe_frames if _ == 0 else 1):
+            for _ in range(frames):
                 u.step_physics()
         self._parts = SceneParts(self._env)
         self._t, self._measure = 0, 0.0

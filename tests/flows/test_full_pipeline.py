@@ -103,6 +103,8 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert report.video_codec == "av1" and export["params.video"] == "128x128 at 10 pictures/s, av1"
     assert export["metrics.video_render_seconds"] > 0
     assert export["params.dataset_digest"] and len(export["params.dataset_digest"]) == 16
+    info = json.loads((tmp_path / "out" / "datasets" / "hammer-sweep-seed0" / "meta" / "info.json").read_text())
+    assert info["features"]["observation.environment_state"]["shape"] == [52]  # what a state-based policy reads
     experiment = mlflow.get_experiment_by_name("prl")
     assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"  # the UI opens on the runs
     figures = {a.path for a in mlflow.MlflowClient().list_artifacts(trials["run_id"])}
