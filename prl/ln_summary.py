@@ -313,8 +313,8 @@ def stale_points(summaries: Mapping[str, Mapping[str, Any]],
 def stale_section(stale: Mapping[str, str]) -> list[str]:
     """The stale summaries, one row each with the files that changed since they were made."""
     if not stale:
-        return [("No committed summary is stale: every point and reference above ran on today's code of its task and "
-                "method.")]
+        return [("No committed summary is stale: every point and reference on this page ran on today's code of its "
+                 "task and method.")]
     lines = [(f"{len(stale)} committed summaries ran on code that has changed since (`prl.version.outcome_version` of "
              "their task and method): they are left out of every table and figure of this page and count as missing "
              "below until they are run again."), "", "| summary | why |", "|---|---|"]

@@ -508,8 +508,8 @@ HOW_TO_READ = (
 """The report's reading notes on its statistics."""
 FIG8_TEXT = (
     "Success rate over the last update's worth of episodes while training; mean over seeds with a min-max band; log "
-    f"axes (a joint-control step is {JOINT_FRAMES_PER_STEP} physics frames, a plan episode about 770). Top: physics-guided K = 1,280 and "
-    "K = 0 against joint control; bottom: the demonstration steps and BC.")
+    f"axes (a joint-control step is {JOINT_FRAMES_PER_STEP} physics frames, a plan episode about 770). Top: "
+    "physics-guided K = 1,280 and K = 0 against joint control; bottom: the demonstration steps and BC.")
 """What the report says of its figures."""
 REWARD_TEXT = (
     "The LN's reward is the task's measure in the episode's outcome (the paper's d, N, theta, l), and success is the "
