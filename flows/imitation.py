@@ -92,21 +92,30 @@ def rollout_task(policy_dir: str, task_name: str, seeds: list[int]) -> dict[str,
     return {"successes": k, "n": n, "outcomes": [dataclasses.asdict(o) for o in outcomes]}
 
 
+def check_inputs(dataset_root: str, task_name: str, demos: int | None, eval_scenes: int) -> None:
+    """ValueError naming an unknown task, a task the dataset does not hold, or a bad count; FileNotFoundError naming
+    a dataset without scene records."""
+    from envs.tasks import task_class  # heavy: loads the simulator
+    from prl.imitation import task_episodes
+
+    task_class(task_name)
+    if demos is not None and demos < 1:
+        raise ValueError(f"demos must be >= 1 (or left out for all), got {demos}")
+    if eval_scenes < 1:
+        raise ValueError(f"eval_scenes must be >= 1, got {eval_scenes}")
+    task_episodes(dataset_root, task_name, demos)
+
+
 @flow(name="prl-imitation", log_prints=True)
 def imitation(dataset_root: str, task_name: str = "hammer", overrides: dict[str, Any] | None = None,
               demos: int | None = None, eval_seed: int = 0, eval_scenes: int = 20,
               output_dir: str = "outputs/imitation") -> dict[str, Any]:
     """Train ``ImitationConfig(**overrides)`` on ``task_name``'s demos of the dataset at ``dataset_root`` and roll it
     out on ``eval_scenes`` scenes of ``eval_seed``; the rollout's successes and the training's losses."""
-    from envs.tasks import task_class  # heavy: loads the simulator
-    from envs.trials import eval_scene_seeds
-    from prl.imitation import task_episodes
+    from envs.trials import eval_scene_seeds  # heavy: loads the simulator
 
     cfg = ImitationConfig(**(overrides or {}))
-    task_class(task_name)  # ValueError naming an unknown task before any run starts
-    task_episodes(dataset_root, task_name, demos)  # and one the dataset does not hold
-    if eval_scenes < 1:
-        raise ValueError(f"eval_scenes must be >= 1, got {eval_scenes}")
+    check_inputs(dataset_root, task_name, demos, eval_scenes)
     out_dir = Path(output_dir) / f"{task_name}-{cfg.policy}-seed{cfg.seed}"
     tracking.configure("prl")
     with tracking.parent_run(f"imitation-{task_name}", params={"dataset_root": dataset_root, "task": task_name},
@@ -128,10 +137,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", default="outputs/imitation", help="where the policy is saved")
     add_config_arguments(parser, ImitationConfig)
     args = parser.parse_args(argv)
-    try:
+    try:  # before any flow run or MLflow run starts
         overrides = config_overrides(args, ImitationConfig)
         ImitationConfig(**overrides)
-    except (ValueError, TypeError) as exc:
+        check_inputs(args.dataset_root, args.task, args.demos, args.eval_scenes)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     imitation(args.dataset_root, args.task, overrides, args.demos, args.eval_seed, args.eval_scenes, args.output_dir)

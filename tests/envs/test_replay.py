@@ -96,3 +96,43 @@ def test_act_trains_on_the_dataset_and_acts_in_the_joint_env(dataset: Path, tmp_
     assert outcome.error == "" and isinstance(outcome.success, bool) and np.isfinite(outcome.measure)
     with pytest.raises(FileNotFoundError, match="no trained policy"):
         ImitationActor(tmp_path / "nowhere")
+
+
+@pytest.mark.sim
+@pytest.mark.train
+@pytest.mark.integration
+def test_the_imitation_flow_trains_registers_and_rolls_out(dataset: Path, tmp_path: Path) -> None:
+    """``python -m flows.imitation`` as a user runs it: a parent run with its two child runs, the loss per step,
+    the policy registered as ``prl-imitation`` (lerobot's files, no pickle), the rollout's success rate."""
+    import os
+    import subprocess
+    import sys
+
+    import mlflow
+
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}",
+           "PREFECT_HOME": str(tmp_path / "prefect"), "PREFECT_SERVER_ANALYTICS_ENABLED": "false"}
+    args = ["--dataset-root", str(dataset), "--task", "unscrew", "--steps", "3", "--batch-size", "8", "--dim-model",
+            "64", "--dim-feedforward", "128", "--n-heads", "4", "--log-every", "1", "--eval-scenes", "1",
+            "--output-dir", str(tmp_path / "im")]
+    res = subprocess.run([sys.executable, "-m", "flows.imitation", *args], cwd=repo, env=env, capture_output=True,
+                         text=True, timeout=900, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    runs = mlflow.search_runs(experiment_names=["prl"])
+    names = set(runs["tags.mlflow.runName"])
+    assert {"imitation-unscrew", "imitation-train", "imitation-rollout"} <= names
+    train = runs[runs["tags.mlflow.runName"] == "imitation-train"].iloc[0]
+    rollout = runs[runs["tags.mlflow.runName"] == "imitation-rollout"].iloc[0]
+    history = mlflow.MlflowClient().get_metric_history(train["run_id"], "imitation/loss")
+    assert [m.step for m in history] == [1, 2, 3] and train["params.steps"] == "3"
+    assert rollout["metrics.imitation/success_rate"] in (0.0, 1.0)
+    (version,) = mlflow.MlflowClient().search_model_versions("name='prl-imitation'")
+    files = {Path(p).name for p in (Path(mlflow.artifacts.download_artifacts(f"models:/prl-imitation/{version.version}"))
+                                    .iterdir())}
+    assert {"model.safetensors", "config.json"} <= files and not any(f.endswith((".pkl", ".pt")) for f in files)
+    bad = subprocess.run([sys.executable, "-m", "flows.imitation", *args, "--task", "hamer"], cwd=repo, env=env,
+                         capture_output=True, text=True, timeout=900, check=False)
+    assert bad.returncode == 2 and "unknown task 'hamer'" in bad.stderr  # before any run starts
+    assert len(mlflow.search_runs(experiment_names=["prl"])) == len(runs)
