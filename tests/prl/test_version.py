@@ -226,3 +226,19 @@ def test_the_list_holds_everything_its_modules_import(task: str, method: str) ->
                 unlisted.add(f"{dep} (imported by {rel})")
     assert sorted(unlisted) == []
     assert not any(f in listed for f in others)
+
+
+def test_no_committed_plan_space_summary_is_stale() -> None:
+    """The committed LN results: every plan-space point and reference row ran on today's code of its task and method
+    (an edit of the joint-control environment or of the export's writer must leave them current)."""
+    from prl.ln_reference import read_references, reference_file_name
+    from prl.ln_summary import read_summaries, stale_points
+    from prl.version import method_family
+
+    results = REPO_ROOT / "docs" / "results" / "ln"
+    summaries = read_summaries(results)
+    references = {reference_file_name(t).removesuffix(".json"): r for t, r in read_references(results).items()}
+    stale = stale_points({**summaries, **references})
+    plan_stale = {n: why for n, why in stale.items()
+                  if n in references or method_family(summaries[n]["point"]["variant"]) == "plan"}
+    assert plan_stale == {}
