@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -93,10 +94,12 @@ def rollout_task(policy_dir: str, task_name: str, seeds: list[int]) -> dict[str,
 
 
 def check_inputs(dataset_root: str, task_name: str, demos: int | None, eval_scenes: int) -> None:
-    """ValueError naming an unknown task, a task the dataset does not hold, or a bad count; FileNotFoundError naming
+    """ValueError naming an unknown task, a task the dataset does not hold, a feature the policy reads that the
+    dataset lacks (one exported before ``observation.environment_state``), or a bad count; FileNotFoundError naming
     a dataset without scene records."""
     from envs.tasks import task_class  # heavy: loads the simulator
-    from prl.imitation import task_episodes
+    from prl.export_schema import require_feature
+    from prl.imitation import IMITATION_INPUTS, task_episodes
 
     task_class(task_name)
     if demos is not None and demos < 1:
@@ -104,6 +107,9 @@ def check_inputs(dataset_root: str, task_name: str, demos: int | None, eval_scen
     if eval_scenes < 1:
         raise ValueError(f"eval_scenes must be >= 1, got {eval_scenes}")
     task_episodes(dataset_root, task_name, demos)
+    features = json.loads((Path(dataset_root) / "meta" / "info.json").read_text())["features"]
+    for name in IMITATION_INPUTS:
+        require_feature(features, name, dataset_root)
 
 
 @flow(name="prl-imitation", log_prints=True)

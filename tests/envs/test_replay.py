@@ -137,4 +137,13 @@ def test_the_imitation_flow_trains_registers_and_rolls_out(dataset: Path, tmp_pa
 
     assert main([*args, "--task", "hamer"]) == 2 and "unknown task 'hamer'" in capsys.readouterr().err
     assert main([*args, "--demos", "0"]) == 2 and "demos must be >= 1" in capsys.readouterr().err
+    import json
+    import shutil
+
+    old = shutil.copytree(dataset, tmp_path / "old")  # a dataset exported before observation.environment_state
+    info = json.loads((old / "meta" / "info.json").read_text())
+    del info["features"]["observation.environment_state"]
+    (old / "meta" / "info.json").write_text(json.dumps(info))
+    assert main([*args, "--dataset-root", str(old)]) == 2
+    assert "no 'observation.environment_state' feature" in capsys.readouterr().err
     assert len(mlflow.search_runs(experiment_names=["prl"])) == len(runs)
