@@ -15,7 +15,7 @@ from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
 from envs.trials import PLAN_KINDS, TrialOutcome, kind_seed
 from flows.artifacts import publish_table, rate_row
 from flows.check_assets import Assets
-from flows.worker_env import worker_env
+from flows.worker_variables import worker_variables
 from prl import tracking
 from prl.config import PipelineConfig
 
@@ -58,14 +58,14 @@ def run_all_trials(cfg: PipelineConfig, code_version: str) -> dict[str, dict[str
     their own (Prefect's ``ProcessPoolTaskRunner``; each builds its environments), with no progress bars, which
     would overwrite each other; else one after another in this process, with them. The outcomes do not depend on
     the number of processes: each pair's scenes and plans come from the run's seed. The processes report to this
-    process's Prefect API (``flows.worker_env.worker_env``): without it each started a temporary server of its own."""
+    process's Prefect API (``flows.worker_variables.worker_variables``): without it each started a temporary server of its own."""
     jobs = [(name, kind) for name in cfg.tasks for kind in PLAN_KINDS]
     parallel = cfg.workers > 1 and len(jobs) > 1
     runner = ProcessPoolTaskRunner(max_workers=min(cfg.workers, len(jobs))) if parallel else \
         ThreadPoolTaskRunner(max_workers=1)
     saved = os.environ.get("PREFECT_API_URL")
     if parallel:  # the spawned processes inherit this process's environment
-        os.environ["PREFECT_API_URL"] = worker_env()["PREFECT_API_URL"]
+        os.environ["PREFECT_API_URL"] = worker_variables()["PREFECT_API_URL"]
     try:
         outcomes = _trials_flow.with_options(task_runner=runner)(jobs, cfg.eval_scenes, cfg.seed, cfg.episode_frames,
                                                                  code_version, not parallel)

@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 from envs.synthesis import ShardResult, ShardSpec, split_successes
 from flows.artifacts import publish_table
 from flows.plan_trials import Trials
-from flows.worker_env import worker_env
+from flows.worker_variables import worker_variables
 from prl import tracking
 from prl.config import PipelineConfig
 from prl.constants import EPISODE_FRAMES
@@ -89,7 +89,7 @@ LOCAL_DASK_CONFIG: dict[str, Any] = {
 def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     """A Dask task runner: the given scheduler, or a local cluster of ``workers`` single-thread processes.
 
-    The local workers are pointed at this process's Prefect API (``worker_env``). Without that, a run
+    The local workers are pointed at this process's Prefect API (``worker_variables``). Without that, a run
     on Prefect's temporary server (no ``PREFECT_API_URL``) had every worker start a server of its own,
     which took about half of each worker's CPU: 1.79 worker-seconds per attempt against 0.83 for the
     same shards run by bare processes, 0.84 with it (2 workers, 30 hammer demos, steady part, 2026-11-30).
@@ -112,7 +112,7 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     # environment when they import distributed, before the nanny's ``env`` reaches them, so it is set here
     logging.getLogger("distributed").setLevel(logging.WARNING)
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
-    return DaskTaskRunner(cluster_kwargs={**local_cluster_kwargs(workers), "env": worker_env()})
+    return DaskTaskRunner(cluster_kwargs={**local_cluster_kwargs(workers), "env": worker_variables()})
 
 
 def local_cluster_kwargs(workers: int) -> dict[str, Any]:

@@ -130,13 +130,13 @@ def test_fast_resets_freezes_the_heap_and_always_unfreezes() -> None:
     assert gc.get_freeze_count() == 0
 
 
-def test_worker_env_passes_a_set_api_url_on() -> None:
+def test_worker_variables_pass_a_set_api_url_on() -> None:
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    from flows.worker_env import worker_env
+    from flows.worker_variables import worker_variables
 
     with temporary_settings({PREFECT_API_URL: "http://10.1.2.3:4200/api/"}):
-        assert worker_env() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api", "DASK_LOGGING__DISTRIBUTED": "warning"}
+        assert worker_variables() == {"PREFECT_API_URL": "http://10.1.2.3:4200/api", "DASK_LOGGING__DISTRIBUTED": "warning"}
 
 
 def _worker_api_url() -> str:

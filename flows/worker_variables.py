@@ -1,10 +1,10 @@
-"""The environment of the pipeline's worker processes (Dask workers, the plan trials' processes)."""
+"""The environment variables of the pipeline's worker processes (Dask workers, the plan trials' processes)."""
 
 from __future__ import annotations
 
 
-def worker_env() -> dict[str, str]:
-    """Environment for local worker processes (the synthesis' Dask workers, the plan trials' processes): the Prefect
+def worker_variables() -> dict[str, str]:
+    """Environment variables for local worker processes (the synthesis' Dask workers, the plan trials' processes): the Prefect
     API URL this process uses, Dask's logs at warnings only.
 
     When ``PREFECT_API_URL`` is unset, Prefect's temporary server of this process is started (if it
