@@ -1,11 +1,11 @@
 """The LN ablation sweep (paper Fig 8) as a Prefect flow: ``python -m flows.ablation --dataset-root D --pointnet-path P``
-(neither for a sweep of ``--variants joint`` alone).
+(neither for a sweep of ``--methods joint`` alone).
 
-Points = tasks x variants x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
+Points = tasks x methods x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
 K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
 point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
 run is found again by a key over the sweep's settings (not its list of points), and points that already
-have a finished child run and a summary are not re-run, so adding seeds or variants runs only the new ones.
+have a finished child run and a summary are not re-run, so adding seeds or methods runs only the new ones.
 ``--reevaluate`` executes the finished points' saved final policies again on the evaluation scenes (after a
 task's success criterion changed) and replaces their ``eval`` without retraining. At the end Fig 8 is drawn
 from the points' runs: success rate against timesteps and against physics frames, mean over seeds with a
@@ -42,16 +42,16 @@ PAPER_DEMO_STEPS: tuple[int, ...] = (0, 320, 640, 1280, 2560)
 """The paper's demonstration-step ablation."""
 
 
-def sweep_points(tasks: list[str], variants: list[str], demo_steps: list[int], seeds: list[int]) -> list[LNPoint]:
-    """Every point of a sweep, in a fixed order (``LNPoint`` checks each: an unknown variant, a negative K)."""
+def sweep_points(tasks: list[str], methods: list[str], demo_steps: list[int], seeds: list[int]) -> list[LNPoint]:
+    """Every point of a sweep, in a fixed order (``LNPoint`` checks each: an unknown method, a negative K)."""
     points = []
     for task_name in tasks:
-        for variant in variants:
-            steps = [0] if variant == "joint" else [k for k in demo_steps if variant != "bc" or k > 0]
+        for method in methods:
+            steps = [0] if method == "joint" else [k for k in demo_steps if method != "bc" or k > 0]
             for k in steps:
-                points.extend(LNPoint(task_name, variant, int(k), int(s)) for s in seeds)
+                points.extend(LNPoint(task_name, method, int(k), int(s)) for s in seeds)
     if not points:
-        raise ValueError(f"the sweep has no point (variants {variants}, demo steps {demo_steps}, seeds {seeds})")
+        raise ValueError(f"the sweep has no point (methods {methods}, demo steps {demo_steps}, seeds {seeds})")
     return points
 
 
@@ -118,13 +118,13 @@ def ablation(dataset_root: str | None, pointnet_path: str | None,
 
     cfg = make_ablation_config(dataset_root, pointnet_path, **(overrides or {}))
     tasks = list(cfg.tasks)
-    points = sweep_points(tasks, list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))
+    points = sweep_points(tasks, list(cfg.methods), list(cfg.demo_steps), list(cfg.seeds))
     root = cfg.dataset_root
-    plan_tasks = list(dict.fromkeys(p.task for p in points if p.variant != "joint"))
+    plan_tasks = list(dict.fromkeys(p.task for p in points if p.method != "joint"))
     scenes = read_scenes(root) if plan_tasks else []  # FileNotFoundError naming a missing dataset, before any work
     for p in points:  # K beyond the demonstrations available (one per episode): an error before any work
         available = sum(s["task"] == p.task for s in scenes)
-        if p.variant != "joint" and not available:  # the plan env's x is standardised with the demos' statistics
+        if p.method != "joint" and not available:  # the plan env's x is standardised with the demos' statistics
             raise ValueError(f"the dataset {str(root)!r} has no {p.task} demonstration; point {p.name} needs some")
         if p.demo_steps > available:
             raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
@@ -132,7 +132,7 @@ def ablation(dataset_root: str | None, pointnet_path: str | None,
     out = cfg.output_dir
     results_dir = cfg.results_dir.resolve() if cfg.results_dir is not None else None
     settings = sweep_settings(cfg)
-    key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or variants resumes
+    key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or methods resumes
     setup = LNSetup(demo_dir=out / "demos", pointnet_path=cfg.pointnet_path, out_dir=out / "points",
                     eval_seeds=tuple(eval_scene_seeds(cfg.eval_seed, cfg.eval_scenes)), ln=cfg.ln,
                     n_points=cfg.n_points, progress=False)
@@ -233,15 +233,15 @@ def draw_fig8(summaries: dict[str, Any], out: Path) -> dict[str, Any]:
     by_task: dict[str, dict[str, list]] = {}
     for s in summaries.values():
         p = s["point"]
-        label = f"{p['variant']} K={p['demo_steps']}"
-        if p["variant"] == "joint":  # named by its budget: an equal-frames run is 15x to 75x longer
+        label = f"{p['method']} K={p['demo_steps']}"
+        if p["method"] == "joint":  # named by its budget: an equal-frames run is 15x to 75x longer
             label = f"joint control, {int(s['rows'][-1]['timesteps']) if s['rows'] else 0:,} steps"
         by_task.setdefault(p["task"], {}).setdefault(label, []).append(s["rows"])
     for task_name, curves in sorted(by_task.items()):
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
             name = f"fig8_{task_name}_{x_key}.png"
             figs[name] = plot_learning_curves(dict(sorted(curves.items())), x_key, "window_success_rate", out / name,
-                                              title=f"{task_name}: LN variants", x_label=x_label, log_x=True)
+                                              title=f"{task_name}: LN methods", x_label=x_label, log_x=True)
     return figs
 
 
@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     dataset_root, pointnet_path = overrides.pop("dataset_root", None), overrides.pop("pointnet_path", None)
     try:  # before any flow run or MLflow run starts
         cfg = make_ablation_config(dataset_root, pointnet_path, **overrides)
-        sweep_points(list(cfg.tasks), list(cfg.variants), list(cfg.demo_steps), list(cfg.seeds))
+        sweep_points(list(cfg.tasks), list(cfg.methods), list(cfg.demo_steps), list(cfg.seeds))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

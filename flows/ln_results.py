@@ -69,12 +69,12 @@ def point_settings(point: LNPoint, setup: LNSetup, eval_seed: int,
                    recipe: dict[str, Any] | None = None) -> dict[str, Any]:
     """What decides ``point``'s outcome beside its code version: the LN's and SB3's parameters
     (``prl.config.LNConfig.params`` of the point's config), the evaluation's scene seed and count, the procedure;
-    for the plan variants also the plan environment's physics frames and surface points, the PointNet's file name
+    for the plan-space methods also the plan environment's physics frames and surface points, the PointNet's file name
     (keyed by its config and code version) and the ``recipe`` of the task's demonstrations (``dataset_recipe``);
     joint control uses none of these."""
     settings: dict[str, Any] = {**point_config(point, setup.ln).params(), "eval_seed": int(eval_seed),
                                 "eval_scenes": len(setup.eval_seeds), "procedure": POINT_PROCEDURE}
-    if point.variant != "joint":
+    if point.method != "joint":
         settings.update(n_frames=int(setup.n_frames or EPISODE_FRAMES), n_points=int(setup.n_points),
                         pointnet=Path(setup.pointnet_path).name, dataset=recipe)
     return settings
@@ -112,17 +112,17 @@ def task_dataset_digest(dataset_root: Path, demo_dir: Path, task_name: str) -> s
 
 def point_records(points: list[LNPoint], setup: LNSetup, dataset_root: Path, eval_seed: int) -> dict[str, Any]:
     """``{point name: record}``: what each point would be run with now (``prl.ln_summary.RECORD_KEYS``)."""
-    files = {(p.task, p.variant): outcome_file_digests(p.task, p.variant) for p in points}
-    plan_tasks = sorted({p.task for p in points if p.variant != "joint"})
+    files = {(p.task, p.method): outcome_file_digests(p.task, p.method) for p in points}
+    plan_tasks = sorted({p.task for p in points if p.method != "joint"})
     digests = {t: task_dataset_digest(dataset_root, setup.demo_dir, t) for t in plan_tasks}
     recipes = {t: dataset_recipe(dataset_root, t) for t in plan_tasks}
     pointnet = file_digest(setup.pointnet_path) if plan_tasks else None
-    joint = {p.name: p.variant == "joint" for p in points}
-    return {p.name: {"point": {"task": p.task, "variant": p.variant, "demo_steps": p.demo_steps, "seed": p.seed},
+    joint = {p.name: p.method == "joint" for p in points}
+    return {p.name: {"point": {"task": p.task, "method": p.method, "demo_steps": p.demo_steps, "seed": p.seed},
                      "timesteps": int(setup.ln.timesteps),
                      "settings": point_settings(p, setup, eval_seed, None if joint[p.name] else recipes[p.task]),
-                     "code_version": version_of(files[p.task, p.variant]),
-                     "code_files": files[p.task, p.variant],
+                     "code_version": version_of(files[p.task, p.method]),
+                     "code_files": files[p.task, p.method],
                      "dataset_digest": None if joint[p.name] else digests[p.task],
                      "pointnet_sha256": None if joint[p.name] else pointnet}
             for p in points}
@@ -170,14 +170,14 @@ def ln_committed_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None
     point runs, the summary keeps the one it started with, which a later sweep will not reuse."""
     if parent_run_id is not None:
         tracking.configure("prl")
-    started, files = _now(), outcome_file_digests(point.task, point.variant)
+    started, files = _now(), outcome_file_digests(point.task, point.method)
     version = version_of(files)
     if version != record["code_version"]:
         print(f"{point.name}: the {point.task} code changed since the sweep started ({record['code_version']} -> "
               f"{version}); recording {version}")
         record = {**record, "code_version": version, "code_files": files}
     summary = run_point(point, setup, parent_run_id)
-    if outcome_version(point.task, point.variant) != version:
+    if outcome_version(point.task, point.method) != version:
         print(f"{point.name}: the {point.task} code changed while the point ran; its summary records the version "
               f"it started with ({version}), so a later sweep runs it again")
     path = write_summary(results_dir, committed_summary(summary, record, started, _now(), point_cores(setup.ln.n_envs)))

@@ -43,7 +43,7 @@ def main() -> None:
                                   "scenes (rn_path required; pointnet_path, task, first_seed, scenes, "
                                   "randomization, decodings, frames, prior_seed)."),
         ablation.to_deployment(name="default", description="The LN ablation sweep (Fig 8): dataset_root and "
-                               "pointnet_path required; overrides: AblationConfig fields (tasks, variants, "
+                               "pointnet_path required; overrides: AblationConfig fields (tasks, methods, "
                                "demo_steps, seeds, eval_scenes, workers, ..., ln: {timesteps, ...})."),
         imitation.to_deployment(name="default", description="A LeRobot policy (ACT) trained on a dataset's demos "
                                 "of one task and rolled out in the joint-control environment: dataset_root "

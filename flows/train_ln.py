@@ -1,4 +1,4 @@
-"""The Learning Network stage: one A2C run ("point") per task, variant, demonstration steps and seed.
+"""The Learning Network stage: one A2C run ("point") per task, method, demonstration steps and seed.
 
 A point (``LNPoint``) is one MLflow child run: its settings (``prl.ln.LNConfig.params``), the
 pre-training losses per minibatch (``ln/pretrain/*``), one row of metrics per A2C update at the
@@ -8,7 +8,7 @@ final policy's deterministic plan executed on the unseen evaluation scenes (``ln
 Wilson interval). Variants: ``physics`` (A2C over the Representation Space, pre-trained actor and
 critic on ``demo_steps`` demonstrations; 0 is pure RL), ``bc`` (the same with the actor alone
 pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``), and ``physics_gated`` (not the paper's:
-the physics variant with the reward paid only on success, ``gated_rewards``; the curve's ``ln/reward`` stays the
+the physics method with the reward paid only on success, ``gated_rewards``; the curve's ``ln/reward`` stays the
 measure).
 
 Used by the pipeline's ``ln`` stage (``ln_stage``) and fanned out by ``flows.ablation``.
@@ -33,32 +33,32 @@ from flows.compute_features import Features
 from flows.evaluate_rn import RNEval
 from prl import tracking
 from prl.atomic import atomic_file, write_atomic
-from prl.config import LN_VARIANTS, LNConfig, PipelineConfig
+from prl.config import LN_METHODS, LNConfig, PipelineConfig
 
 
 @dataclass(frozen=True)
 class LNPoint:
-    """One LN run: a task, a variant of ``prl.config.LN_VARIANTS``, demonstration steps K and a seed."""
+    """One LN run: a task, a method of ``prl.config.LN_METHODS``, demonstration steps K and a seed."""
 
     task: str
-    variant: str = "physics"
+    method: str = "physics"
     demo_steps: int = 0
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.variant not in LN_VARIANTS:
-            raise ValueError(f"unknown LN variant {self.variant!r}; known: {', '.join(LN_VARIANTS)}")
+        if self.method not in LN_METHODS:
+            raise ValueError(f"unknown LN method {self.method!r}; known: {', '.join(LN_METHODS)}")
         if isinstance(self.demo_steps, bool) or not isinstance(self.demo_steps, int) or self.demo_steps < 0:
             raise ValueError(f"demo_steps must be an integer >= 0, got {self.demo_steps!r}")
-        if self.variant == "joint" and self.demo_steps:
+        if self.method == "joint" and self.demo_steps:
             raise ValueError(f"the joint-control baseline has no demonstration pre-training (demo_steps={self.demo_steps})")
-        if self.variant == "bc" and not self.demo_steps:
-            raise ValueError("the bc variant pre-trains the actor on demonstrations: give demo_steps > 0")
+        if self.method == "bc" and not self.demo_steps:
+            raise ValueError("the bc method pre-trains the actor on demonstrations: give demo_steps > 0")
 
     @property
     def name(self) -> str:
         """Run name and resume key, e.g. ``ln-hammer-physics-k1280-seed0``."""
-        return f"ln-{self.task}-{self.variant}-k{self.demo_steps}-seed{self.seed}"
+        return f"ln-{self.task}-{self.method}-k{self.demo_steps}-seed{self.seed}"
 
 
 @dataclass(frozen=True)
@@ -87,11 +87,11 @@ class LNSetup:
 def point_config(point: LNPoint, ln: LNConfig) -> LNConfig:
     """The LN settings of ``point``: ``ln`` with the point's demonstration steps, pre-training mode and seed."""
     return dataclasses.replace(ln, demo_steps=point.demo_steps, seed=point.seed,
-                               pretrain_mode="bc" if point.variant == "bc" else "actor_critic")
+                               pretrain_mode="bc" if point.method == "bc" else "actor_critic")
 
 
 def gated_rewards(rewards: np.ndarray, infos: Sequence[dict[str, Any]]) -> np.ndarray:
-    """The ``physics_gated`` variant's rewards: each episode's reward (the task's measure) where its ``info`` says
+    """The ``physics_gated`` method's rewards: each episode's reward (the task's measure) where its ``info`` says
     the task's success rule held, else 0. The paper pays the measure alone (d, N, theta); where a task's rule asks
     more than its measure does (the unscrew's grip of the cap), that reward can pay most for plans the rule
     refuses. The demonstrations all succeeded, so their rewards, the critic's pre-training targets, are unchanged."""
@@ -168,7 +168,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
 
     task_class(point.task)  # ValueError naming an unknown task before anything runs
     cfg = point_config(point, setup.ln)
-    joint = point.variant == "joint"
+    joint = point.method == "joint"
     demos = None if joint else read_demonstrations(setup.demo_dir, point.task)
     served = demos.take(point.demo_steps, point.seed) if demos is not None else None  # K beyond the demos: error now
     setup.out_dir.mkdir(parents=True, exist_ok=True)
@@ -178,12 +178,12 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
               "demo_target": "commanded plan and its measured reward"}
     t0 = time.perf_counter()
     with tracking.child_run(point.name, params=params, parent_run_id=parent_run_id) as run:
-        mlflow.set_tags({"ln_point": point.name, "ln_variant": point.variant, "task": point.task})
+        mlflow.set_tags({"ln_point": point.name, "ln_method": point.method, "task": point.task})
         env_kwargs = {} if joint else {"pointnet_path": setup.pointnet_path, "n_points": setup.n_points,
                                        **({"n_frames": setup.n_frames} if setup.n_frames else {})}
         env = make_vec_env(JointControlEnv if joint else PlanEnv, point.task, cfg.n_envs, run_seed=point.seed, **env_kwargs)
         try:
-            if point.variant == "physics_gated":
+            if point.method == "physics_gated":
                 env = success_gated(env)  # its close() closes the environments it wraps
             stats = feature_stats(demos.x) if demos is not None else (None, None)
             model = make_ln(env, cfg, *stats)
@@ -208,7 +208,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         mlflow.log_metrics({"train_seconds": train_s, "eval_seconds": eval_s,
                             "timesteps_per_second": cfg.timesteps / train_s if train_s > 0 else 0.0})
         for x_key in ("timesteps", "frames"):
-            fig = plot_learning_curves({point.variant: [rows]}, x_key, "window_success_rate",
+            fig = plot_learning_curves({point.method: [rows]}, x_key, "window_success_rate",
                                        setup.out_dir / f"{point.name}-{x_key}.png", title=point.name)
             mlflow.log_figure(fig, f"curves/{point.name}-{x_key}.png")
         summary = {"point": asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": rows,
@@ -271,7 +271,7 @@ def evaluate_policy(point: LNPoint, model: Any, setup: LNSetup) -> list[Any]:
     from prl.pointnet import load_pointnet
 
     seeds = list(setup.eval_seeds)
-    if point.variant == "joint":
+    if point.method == "joint":
         return run_joint_policy(point.task, model.policy, seeds, progress=setup.progress)
     policy = ln_policy(model.policy, load_pointnet(setup.pointnet_path), point.task, load_plb().texts(point.task),
                        seeds, setup.n_points)

@@ -51,12 +51,12 @@ PAPER_LN_DEMO_STEPS = 1280
 PRETRAIN_MODES: tuple[str, ...] = ("actor_critic", "bc")
 """Demonstration pre-training: actor and critic (the paper), or the actor alone (behaviour cloning)."""
 
-PAPER_LN_VARIANTS: tuple[str, ...] = ("physics", "bc", "joint")
-"""The paper's LN variants (its Fig 8), a sweep's default: physics-guided A2C with actor+critic pre-training, the
+PAPER_LN_METHODS: tuple[str, ...] = ("physics", "bc", "joint")
+"""The paper's LN methods (its Fig 8), a sweep's default: physics-guided A2C with actor+critic pre-training, the
 same with BC, joint control."""
 
-LN_VARIANTS: tuple[str, ...] = (*PAPER_LN_VARIANTS, "physics_gated")
-"""Every LN variant: the paper's, and ``physics_gated``, the physics variant whose A2C reward is the task's measure
+LN_METHODS: tuple[str, ...] = (*PAPER_LN_METHODS, "physics_gated")
+"""Every LN method: the paper's, and ``physics_gated``, the physics method whose A2C reward is the task's measure
 only on an episode that meets the task's success rule (0 otherwise; ``flows.train_ln.gated_rewards``). Where the
 rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail."""
 
@@ -159,7 +159,7 @@ class PipelineConfig:
     """Settings of one pipeline run."""
 
     LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("pretrain_mode", "seed")
-    """LN settings the pipeline's LN points take from elsewhere (the physics variant; ``seed``): no flags."""
+    """LN settings the pipeline's LN points take from elsewhere (the physics method; ``seed``): no flags."""
 
     profile: str = "quick"
     """Named preset: 'quick' (laptop minutes) or 'paper' (the paper's scale)."""
@@ -310,14 +310,14 @@ paper profile leaves the dataset video out (``--video`` puts it in): it would ad
 
 @dataclass(frozen=True)
 class AblationConfig:
-    """Settings of one LN ablation sweep (paper Fig 8, ``flows.ablation``): its points are tasks x variants x
+    """Settings of one LN ablation sweep (paper Fig 8, ``flows.ablation``): its points are tasks x methods x
     demo_steps x seeds, each an LN run with the ``ln`` settings."""
 
     LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("demo_steps", "pretrain_mode", "seed")
-    """LN settings each sweep point sets itself (demo_steps, variant, seeds): no flags."""
+    """LN settings each sweep point sets itself (demo_steps, method, seeds): no flags."""
 
     dataset_root: Path | None = None
-    """Exported LeRobot dataset root (the pipeline's datasets/...); needed by the plan variants (physics, bc), not
+    """Exported LeRobot dataset root (the pipeline's datasets/...); needed by the plan-space methods (physics, bc), not
     by a sweep of joint control alone (no demonstrations, no x)."""
     pointnet_path: Path | None = None
     """The PointNet checkpoint the RN used (models/pointnet-*.pt); needed as ``dataset_root`` is."""
@@ -325,8 +325,8 @@ class AblationConfig:
     """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
     tasks: tuple[str, ...] = ("hammer",)
     """Tasks swept, each with demonstrations in the dataset (the paper's four or their variants, ``known_tasks``)."""
-    variants: tuple[str, ...] = PAPER_LN_VARIANTS
-    """LN variants swept (``LN_VARIANTS``): physics (actor+critic pre-training), bc, joint (joint control, no
+    methods: tuple[str, ...] = PAPER_LN_METHODS
+    """LN methods swept (``LN_METHODS``): physics (actor+critic pre-training), bc, joint (joint control, no
     demonstrations); physics_gated only when named."""
     demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
     """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc only for K > 0, joint once."""
@@ -354,7 +354,7 @@ class AblationConfig:
     """Every point's LN settings (the paper's; one plan env per point)."""
 
     def __post_init__(self) -> None:
-        for name, known in (("tasks", known_tasks()), ("variants", LN_VARIANTS)):
+        for name, known in (("tasks", known_tasks()), ("methods", LN_METHODS)):
             values = getattr(self, name)
             if not values:
                 raise ConfigError(f"{name} is empty; give at least one of {', '.join(known)}")
@@ -381,13 +381,13 @@ class AblationConfig:
                                   f"re-evaluate without results_dir, or re-run the points")
         if not isinstance(self.ln, LNConfig):
             raise ConfigError(f"ln must be an LNConfig, got {self.ln!r}")
-        _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "by demo_steps, variants and seeds")
-        plan_variants = [v for v in self.variants if v != "joint"]
+        _check_ln_set_per_point(self.ln, self.LN_SET_PER_POINT, "by demo_steps, methods and seeds")
+        plan_methods = [m for m in self.methods if m != "joint"]
         for name in ("dataset_root", "pointnet_path"):
             value = getattr(self, name)
             if value is None:
-                if plan_variants:
-                    raise ConfigError(f"{name} is needed by the variants {', '.join(plan_variants)} (demonstrations "
+                if plan_methods:
+                    raise ConfigError(f"{name} is needed by the methods {', '.join(plan_methods)} (demonstrations "
                                       f"and x); only a sweep of joint control alone runs without one")
                 continue
             if not isinstance(value, (str, Path)) or not str(value):

@@ -5,7 +5,7 @@ A summary is one JSON object (sorted keys, indent 1, the curve's and outcomes' f
 decimals, no absolute local path), so that a diff of a re-run is readable and the same summary is the same bytes
 on any machine:
 
-- ``name``: the point's name (``ln-<task>-<variant>-k<K>-seed<N>``) and ``point``: ``task``, ``variant`` (physics,
+- ``name``: the point's name (``ln-<task>-<method>-k<K>-seed<N>``) and ``point``: ``task``, ``method`` (physics,
   bc, joint), ``demo_steps`` (K), ``seed``;
 - ``timesteps``: the RL timesteps trained (the file name carries them: a point is also run at other budgets);
 - ``settings``: everything else that decides the outcome (the LN's and SB3's parameters, the evaluation's scene
@@ -62,7 +62,7 @@ REQUIRED: dict[str, type | tuple[type, ...]] = {
 }
 """The keys every summary has, with their JSON types (what ``read_summary`` checks)."""
 
-POINT_KEYS: dict[str, type] = {"task": str, "variant": str, "demo_steps": int, "seed": int}
+POINT_KEYS: dict[str, type] = {"task": str, "method": str, "demo_steps": int, "seed": int}
 """The keys of a summary's ``point``."""
 EVAL_KEYS: dict[str, type | tuple[type, ...]] = {"successes": int, "n": int, "ci95": list, "outcomes": list}
 """The keys of a summary's ``eval``."""
@@ -82,8 +82,8 @@ class SummaryError(ValueError):
 
 
 def point_name(point: Mapping[str, Any]) -> str:
-    """``ln-<task>-<variant>-k<K>-seed<N>`` (``flows.train_ln.LNPoint.name``) of a summary's ``point``."""
-    return f"ln-{point['task']}-{point['variant']}-k{point['demo_steps']}-seed{point['seed']}"
+    """``ln-<task>-<method>-k<K>-seed<N>`` (``flows.train_ln.LNPoint.name``) of a summary's ``point``."""
+    return f"ln-{point['task']}-{point['method']}-k{point['demo_steps']}-seed{point['seed']}"
 
 
 def summary_file_name(name: str, timesteps: int) -> str:
@@ -203,9 +203,12 @@ def check_summary(summary: Any, path: Path) -> None:
 
 def read_summary(path: Path) -> dict[str, Any]:
     """The summary at ``path``, checked (``check_summary``); SummaryError naming the file when it is not valid
-    JSON or malformed."""
+    JSON or malformed. A ``point`` of an older summary names its method ``variant``; it is read as ``method``."""
     path = Path(path)
     summary = read_json(path, "summary")
+    point = summary.get("point") if isinstance(summary, dict) else None
+    if isinstance(point, dict) and "variant" in point and "method" not in point:
+        point["method"] = point.pop("variant")  # the LN method's former name (summaries written before 2026-12-06)
     check_summary(summary, path)
     return summary
 
@@ -296,7 +299,7 @@ def stale_points(summaries: Mapping[str, Mapping[str, Any]],
     out = {}
     for name, s in summaries.items():
         task = s["point"]["task"] if "point" in s else s["task"]
-        method = s["point"]["variant"] if "point" in s else "reference"
+        method = s["point"]["method"] if "point" in s else "reference"
         try:
             current = current_files(task, method)
         except FileNotFoundError:

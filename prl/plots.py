@@ -107,14 +107,14 @@ def plot_rn_probabilities(probs_by_task: Mapping[str, Sequence[np.ndarray]], dim
 
 def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str, y_key: str,
                          out: Path, title: str = "", x_label: str | None = None, log_x: bool = False) -> Any:
-    """The paper's Fig 8 redrawn: for each variant, ``y_key`` against ``x_key`` as the mean over seeds with a
-    band from the lowest to the highest seed. ``curves[variant]`` is one list of rows per seed (the LN's
+    """The paper's Fig 8 redrawn: for each method, ``y_key`` against ``x_key`` as the mean over seeds with a
+    band from the lowest to the highest seed. ``curves[method]`` is one list of rows per seed (the LN's
     per-update rows, first point at the end of the first update); seeds are aligned on their common ``x_key``
     range by linear interpolation. ``log_x`` puts ``x_key`` on a log scale (budgets that differ by 100x)."""
     from matplotlib.figure import Figure  # heavy: matplotlib
 
     if not curves:
-        raise ValueError("curves is empty; give at least one variant")
+        raise ValueError("curves is empty; give at least one method")
     fig = Figure(figsize=(6, 3.6))
     ax = fig.subplots()
     draw_learning_curves(ax, curves, x_key, y_key, x_label=x_label, log_x=log_x)
@@ -128,9 +128,9 @@ def plot_learning_curves(curves: Mapping[str, Sequence[Sequence[Mapping[str, flo
 def draw_learning_curves(ax: Any, curves: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], x_key: str,
                          y_key: str, x_label: str | None = None, log_x: bool = False,
                          colors: Mapping[str, str] | None = None) -> None:
-    """``plot_learning_curves``' curves drawn on the matplotlib axes ``ax`` (``colors``: a colour per variant, so
-    that one variant keeps its colour across panels)."""
-    for variant, runs in curves.items():
+    """``plot_learning_curves``' curves drawn on the matplotlib axes ``ax`` (``colors``: a colour per method, so
+    that one method keeps its colour across panels)."""
+    for method, runs in curves.items():
         runs = [r for r in runs if r]
         if not runs:
             continue
@@ -139,9 +139,9 @@ def draw_learning_curves(ax: Any, curves: Mapping[str, Sequence[Sequence[Mapping
         grid = np.linspace(start, max(end, start), 100)
         ys = np.stack([np.interp(grid, [row[x_key] for row in r], [row[y_key] for row in r]) for r in runs])
         few = len(runs[0]) < 3  # a curve of one or two updates: its ends marked, not every grid point
-        line, = ax.plot(grid, ys.mean(axis=0), label=f"{variant} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
+        line, = ax.plot(grid, ys.mean(axis=0), label=f"{method} ({len(runs)} seed{'s' if len(runs) > 1 else ''})",
                         marker="o" if few else None, markevery=[0, len(grid) - 1] if few else None,
-                        color=(colors or {}).get(variant))
+                        color=(colors or {}).get(method))
         if len(runs) > 1:
             ax.fill_between(grid, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
     if log_x:
@@ -157,7 +157,7 @@ def plot_fig8_panels(panels: Sequence[tuple[str, Mapping[str, Sequence[Sequence[
                      x_key: str, y_key: str, out: Path, title: str = "", x_label: str | None = None,
                      log_x: bool = True) -> Any:
     """Fig 8 of one task as stacked panels (``panels``: a title and its ``plot_learning_curves`` curves each; an
-    empty panel says so), each variant in one colour throughout. Saved as a PNG without the matplotlib version
+    empty panel says so), each method in one colour throughout. Saved as a PNG without the matplotlib version
     in its metadata, so that the same curves give the same bytes."""
     from matplotlib.figure import Figure  # heavy: matplotlib
 

@@ -1,13 +1,13 @@
 """The LN results report, ``docs/results.md`` and its Fig 8 per task, made from the committed point summaries alone
 (``prl.ln_summary``; ``python -m flows.report``): no MLflow store, no ``outputs/``.
 
-Per task and variant (a group: task, variant, K, timesteps) the final plan's success on the evaluation scenes,
+Per task and method (a group: task, method, K, timesteps) the final plan's success on the evaluation scenes,
 pooled over seeds with its Wilson interval and per seed; the interquartile mean of the seeds' success fractions
 with a stratified-bootstrap interval over seeds and scenes, and the probability that K = 1,280 beats K = 0 and
 beats BC (``prl.robust_stats``, rliable's method); the curves' first and last window success; whether the reward
 ranks successes above failures (``reward_table``); the compute; the
 provenance (code versions, dataset digests); and what of the planned experiment (``planned_points``) is missing.
-Beside each task's variants, the reference plans of ``reference-<task>.json`` (``prl.ln_reference``, written by
+Beside each task's methods, the reference plans of ``reference-<task>.json`` (``prl.ln_reference``, written by
 ``python -m flows.ln_reference``: the expert plan, a prior-sampled plan and the RN's argmax plan on the points'
 evaluation scenes), with a flag when their scenes or code version are not the points'. A summary whose recorded code
 version is not today's (``stale_points``: ``prl.version.outcome_version`` of its task and method) is left out of
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from prl.atomic import write_atomic
-from prl.config import LN_VARIANTS, PAPER_LN_DEMO_STEPS, LNConfig
+from prl.config import LN_METHODS, PAPER_LN_DEMO_STEPS, LNConfig
 from prl.constants import REPO_ROOT, TASKS
 from prl.ln_reference import (
     read_references,
@@ -70,10 +70,10 @@ class Group:
     """Position of the task in ``prl.constants.TASKS`` (unknown tasks after them): the rows' order."""
     task: str
     """Task name."""
-    variant_index: int
-    """Position of the variant in ``prl.config.LN_VARIANTS``."""
-    variant: str
-    """physics, bc, joint or physics_gated (``prl.config.LN_VARIANTS``)."""
+    method_index: int
+    """Position of the method in ``prl.config.LN_METHODS``."""
+    method: str
+    """physics, bc, joint or physics_gated (``prl.config.LN_METHODS``)."""
     demo_steps: int
     """K."""
     timesteps: int
@@ -82,7 +82,7 @@ class Group:
     @property
     def label(self) -> str:
         """``physics K=1280``, ``bc K=1280``, ``joint``; the budget appended unless it is the paper's."""
-        base = "joint control" if self.variant == "joint" else f"{self.variant} K={self.demo_steps}"
+        base = "joint control" if self.method == "joint" else f"{self.method} K={self.demo_steps}"
         return base if self.timesteps == PAPER_TIMESTEPS else f"{base}, {self.timesteps:,} steps"
 
 
@@ -90,8 +90,8 @@ def group_of(summary: Mapping[str, Any]) -> Group:
     """The ``Group`` of one summary."""
     p = summary["point"]
     task_index = TASKS.index(p["task"]) if p["task"] in TASKS else len(TASKS)
-    variant_index = LN_VARIANTS.index(p["variant"]) if p["variant"] in LN_VARIANTS else len(LN_VARIANTS)
-    return Group(task_index, p["task"], variant_index, p["variant"], int(p["demo_steps"]), int(summary["timesteps"]))
+    method_index = LN_METHODS.index(p["method"]) if p["method"] in LN_METHODS else len(LN_METHODS)
+    return Group(task_index, p["task"], method_index, p["method"], int(p["demo_steps"]), int(summary["timesteps"]))
 
 
 def grouped(summaries: Mapping[str, Mapping[str, Any]]) -> dict[Group, list[Mapping[str, Any]]]:
@@ -108,8 +108,8 @@ class Planned:
 
     task: str
     """Task name."""
-    variant: str
-    """physics, bc, joint or physics_gated (``prl.config.LN_VARIANTS``)."""
+    method: str
+    """physics, bc, joint or physics_gated (``prl.config.LN_METHODS``)."""
     demo_steps: int
     """K."""
     seed: int
@@ -120,7 +120,7 @@ class Planned:
     def done_by(self, summary: Mapping[str, Any]) -> bool:
         """Whether ``summary`` is this point."""
         p = summary["point"]
-        same = (p["task"], p["variant"], p["demo_steps"], p["seed"]) == (self.task, self.variant, self.demo_steps,
+        same = (p["task"], p["method"], p["demo_steps"], p["seed"]) == (self.task, self.method, self.demo_steps,
                                                                            self.seed)
         t = int(summary["timesteps"])
         return same and (t > PAPER_TIMESTEPS if self.equal_frames else t == PAPER_TIMESTEPS)
@@ -182,7 +182,7 @@ def _poi_cell(x: Mapping[str, list[list[float]]], y: Mapping[str, list[list[floa
     return _ci(*probability_of_improvement(x, y, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED))
 
 
-SUCCESS_HEADER = ("| variant | seeds | per seed | pooled (95% Wilson CI) | IQM (95% bootstrap CI) "
+SUCCESS_HEADER = ("| method | seeds | per seed | pooled (95% Wilson CI) | IQM (95% bootstrap CI) "
                   "| training window success, first -> last update |")
 """The header of a task's table of final success."""
 
@@ -256,7 +256,7 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) 
     """The target's verdict of one task: a paper task's LN pre-trained on K = 1,280 demonstration steps pooled >=
     ``TARGET``; a task variant's (``<task>_mixed``) LN pre-trained on its demos (the largest K run) >=
     ``VARIANT_TARGET``."""
-    physics = {g.demo_steps: m for g, m in groups.items() if g.task == task and g.variant == "physics"
+    physics = {g.demo_steps: m for g, m in groups.items() if g.task == task and g.method == "physics"
                and g.timesteps == PAPER_TIMESTEPS and g.demo_steps > 0}
     if task in TASKS:
         k = PAPER_LN_DEMO_STEPS
@@ -271,7 +271,7 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) 
     verdict = "met" if n and won / n >= target else "**missed**"
     line = (f"Target ({head}, pooled >= {target:.2f}): {verdict} ({won}/{n} over {len(members)} "
             f"seed{'s' if len(members) != 1 else ''}).")
-    gated = [s for g, m in groups.items() if g.task == task and g.variant == "physics_gated"
+    gated = [s for g, m in groups.items() if g.task == task and g.method == "physics_gated"
              and g.timesteps == PAPER_TIMESTEPS and g.demo_steps == k for s in m]
     if gated:  # beside the target's verdict, never in its place: the reward is not the paper's
         won, n = _pooled(gated)
@@ -281,17 +281,17 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) 
 
 
 def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
-    """Per variant at the paper's budget, the IQM over every task's seeds, stratified by task: the paper's tasks
+    """Per method at the paper's budget, the IQM over every task's seeds, stratified by task: the paper's tasks
     (``prl.constants.TASKS``) and the task variants (``hammer_mixed``, ...) apart, so that a variant's scenes never
     move a paper task's number."""
-    by_variant: dict[tuple[int, str, int, bool], dict[str, list[list[float]]]] = {}
+    by_method: dict[tuple[int, str, int, bool], dict[str, list[list[float]]]] = {}
     for g, members in groups.items():
         if g.timesteps == PAPER_TIMESTEPS:
-            key = (g.variant_index, g.variant, g.demo_steps, g.task not in TASKS)
-            by_variant.setdefault(key, {})[g.task] = _runs(members)
-    lines = ["| variant | tasks | IQM over all seeds (95% stratified-bootstrap CI) |", "|---|---|---|"]
-    for (_, variant, k, _), runs in sorted(by_variant.items(), key=lambda kv: (kv[0][3], kv[0][:3])):
-        label = Group(0, "", 0, variant, k, PAPER_TIMESTEPS).label
+            key = (g.method_index, g.method, g.demo_steps, g.task not in TASKS)
+            by_method.setdefault(key, {})[g.task] = _runs(members)
+    lines = ["| method | tasks | IQM over all seeds (95% stratified-bootstrap CI) |", "|---|---|---|"]
+    for (_, method, k, _), runs in sorted(by_method.items(), key=lambda kv: (kv[0][3], kv[0][:3])):
+        label = Group(0, "", 0, method, k, PAPER_TIMESTEPS).label
         lines.append(f"| {label} | {', '.join(runs)} | {_iqm_cell(runs)} |")
     return lines
 
@@ -299,9 +299,9 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
 def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
     """P(physics K = 1,280 > physics K = 0) and P(physics K = 1,280 > BC K = 1,280), per task that has either pair and
     over the paper's tasks that have both, at the paper's budget."""
-    def runs_of(variant: str, k: int) -> dict[str, list[list[float]]]:
+    def runs_of(method: str, k: int) -> dict[str, list[list[float]]]:
         return {g.task: _runs(m) for g, m in groups.items()
-                if g.variant == variant and g.demo_steps == k and g.timesteps == PAPER_TIMESTEPS}
+                if g.method == method and g.demo_steps == k and g.timesteps == PAPER_TIMESTEPS}
 
     ref = runs_of("physics", PAPER_LN_DEMO_STEPS)
     others = (runs_of("physics", 0), runs_of("bc", PAPER_LN_DEMO_STEPS))
@@ -328,7 +328,7 @@ def reward_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[st
     ranks the successes above the failures: the failures paid at least as much as the least-paid success, with the
     groups and seeds they came from. Outcomes without a finite measure are left out."""
     header = ("| task | scenes | successes | least reward of a success | highest reward of a failure | failures paid at "
-              "least the least-paid success | from (variant, seed: failures) |")
+              "least the least-paid success | from (method, seed: failures) |")
     lines = [header, "|---|---|---|---|---|---|---|"]
     for task in sorted({g.task for g in groups}, key=_task_order):
         scored = [(g.label, s["point"]["seed"], bool(o["success"]), m) for g, members in groups.items()
@@ -424,7 +424,7 @@ def equal_frames_budget(groups: Mapping[Group, Sequence[Mapping[str, Any]]], tas
     """Joint-control steps with the physics frames of ``task``'s K = 1,280 plan runs (mean of their final frames
     over ``JOINT_FRAMES_PER_STEP``, rounded up to a whole A2C update of 64); None before those runs exist."""
     frames = [s["rows"][-1]["frames"] for g, m in groups.items() for s in m
-              if g.task == task and g.variant == "physics" and g.demo_steps == PAPER_LN_DEMO_STEPS
+              if g.task == task and g.method == "physics" and g.demo_steps == PAPER_LN_DEMO_STEPS
               and g.timesteps == PAPER_TIMESTEPS and s["rows"]]
     if not frames:
         return None
@@ -440,13 +440,13 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
     lines = [f"{len(plan) - len(missing)} of the {len(plan)} planned points are done."]
     if not missing:
         return lines
-    lines += ["", "| task | missing points: variant, seeds |", "|---|---|"]
+    lines += ["", "| task | missing points: method, seeds |", "|---|---|"]
     for task in dict.fromkeys(p.task for p in missing):
         arms: dict[str, list[str]] = {}
         for p in missing:
             if p.task == task:
                 arm = "joint control at equal frames" if p.equal_frames else \
-                    Group(0, task, 0, p.variant, p.demo_steps, PAPER_TIMESTEPS).label
+                    Group(0, task, 0, p.method, p.demo_steps, PAPER_TIMESTEPS).label
                 arms.setdefault(arm, []).append(str(p.seed))
         lines.append(f"| {task} | {'; '.join(f'{arm}: {",".join(seeds)}' for arm, seeds in arms.items())} |")
     budgets = [f"{t}: {b:,}" if (b := equal_frames_budget(groups, t)) else f"{t}: after its K = 1,280 runs"
@@ -456,11 +456,11 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
                   + "--pointnet-path ...`, which joint control alone does not need, and an `--output-dir` of each "
                   + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
               "", "```",
-              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --variants physics,bc,joint --demo-steps "
+              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods physics,bc,joint --demo-steps "
               + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
-              "python -m flows.ablation $D --tasks hammer --variants physics --demo-steps "
+              "python -m flows.ablation $D --tasks hammer --methods physics --demo-steps "
               + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
-              f"python -m flows.ablation --tasks <task> --variants joint --seeds {PLAN_SEEDS[0]} "
+              f"python -m flows.ablation --tasks <task> --methods joint --seeds {PLAN_SEEDS[0]} "
               + f"--ln-timesteps <equal-frames steps> {tail}", "```"]
     if budgets:
         lines += ["", "Equal-frames joint-control steps: " + "; ".join(budgets) + "."]
@@ -469,7 +469,7 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
 
 def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: Path) -> dict[str, list[Path]]:
     """Fig 8 per task against timesteps and against frames (``fig8_<task>_timesteps.png``, ``..._frames.png``): top
-    physics K = 1,280 and K = 0 against joint control, bottom every demonstration-step variant and BC; mean over
+    physics K = 1,280 and K = 0 against joint control, bottom every demonstration-step count and BC; mean over
     seeds with a min-max band. Returns each task's files."""
     from prl.plots import plot_fig8_panels  # heavy: matplotlib
 
@@ -477,10 +477,10 @@ def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: P
     for task in dict.fromkeys(g.task for g in groups):
         mine = {g: [s["rows"] for s in m] for g, m in groups.items() if g.task == task}
         top = {g.label: rows for g, rows in mine.items()
-               if g.variant == "joint" or (g.variant in ("physics", "physics_gated")
+               if g.method == "joint" or (g.method in ("physics", "physics_gated")
                                            and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
                                            and g.timesteps == PAPER_TIMESTEPS)}
-        bottom = {g.label: rows for g, rows in mine.items() if g.variant != "joint"}
+        bottom = {g.label: rows for g, rows in mine.items() if g.method != "joint"}
         panels = [("physics-guided (K = 1,280 and K = 0) vs joint control", top),
                   ("demonstration steps K, and BC", bottom)]
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
@@ -549,7 +549,7 @@ def render(summaries: Mapping[str, Mapping[str, Any]], results_rel: str, results
              f"alone (no MLflow store, no `outputs/`); do not edit by hand: a sweep run with `--results-dir "
              f"{results_rel}` adds or replaces summaries, and the command makes this page and its figures again. "
              f"The pipeline's earlier runs, with their commands and dates, are in [runs.md](runs.md).")
-    points = (f"- A point is one seed of one variant: A2C over the Representation Space pre-trained on K "
+    points = (f"- A point is one seed of one method: A2C over the Representation Space pre-trained on K "
               f"demonstration steps, actor and critic (`physics`; K = 0 is pure RL) or the actor alone (`bc`), or A2C "
               f"on the 30 joint targets (`joint control`), trained for {PAPER_TIMESTEPS:,} RL timesteps unless the row "
               f"says otherwise; its final deterministic plan is executed on {eval_n} unseen scenes (the RN "

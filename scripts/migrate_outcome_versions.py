@@ -84,7 +84,7 @@ def check_episodes(summaries: dict[Path, dict], per_task: int) -> None:
     by_task: dict[str, list[tuple[int, list[int], bool, float, int]]] = {}
     for s in summaries.values():
         task = s["point"]["task"] if "point" in s else s["task"]
-        if "point" not in s or method_family(s["point"]["variant"]) != "plan":
+        if "point" not in s or method_family(s["point"]["method"]) != "plan":
             continue
         picks = by_task.setdefault(task, [])
         n_frames = int(s["settings"].get("n_frames", 750))
@@ -127,7 +127,7 @@ def main() -> None:
     check_episodes(summaries, args.check_episodes)
     for path, s in summaries.items():
         task = s["point"]["task"] if "point" in s else s["task"]
-        method = s["point"]["variant"] if "point" in s else "reference"
+        method = s["point"]["method"] if "point" in s else "reference"
         read = None if method_family(method) == "plan" else (lambda rel: git_bytes(args.base, rel))
         files = outcome_file_digests(task, method, read=read)
         s.update(code_files=files, code_version=version_of(files))

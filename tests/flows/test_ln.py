@@ -85,9 +85,9 @@ def test_pretraining_minibatch_is_one_a2c_update_and_points_derive_their_setting
     assert point_config(LNPoint("hammer", "physics", 0, 1), run).pretrain_mode == "actor_critic"
 
 
-def test_the_gated_variant_pays_the_measure_only_on_success() -> None:
+def test_the_gated_method_pays_the_measure_only_on_success() -> None:
     """``physics_gated``: the measure where the episode met the success rule, else 0, computed by hand; through the
-    SB3 wrapper the A2C reads rewards from; and otherwise the physics variant's settings."""
+    SB3 wrapper the A2C reads rewards from; and otherwise the physics method's settings."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from flows.train_ln import LNPoint, gated_rewards, point_config, success_gated
@@ -198,7 +198,7 @@ def test_ln_points_and_sweeps_name_bad_input() -> None:
     from flows.ablation import sweep_points
     from flows.train_ln import LNPoint
 
-    with pytest.raises(ValueError, match="unknown LN variant 'ppo'"):
+    with pytest.raises(ValueError, match="unknown LN method 'ppo'"):
         LNPoint("hammer", "ppo")
     with pytest.raises(ValueError, match="joint-control baseline has no demonstration"):
         LNPoint("hammer", "joint", 1280)
@@ -230,14 +230,14 @@ def test_fig8_redrawn_from_sweep_directories(tmp_path: Path, capsys: pytest.Capt
     assert main(["--draw-from", str(tmp_path / "nowhere"), "--output-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "no LN point summaries under" in err and "nowhere" in err
-    assert main(["--tasks", "hammer"]) == 2  # a sweep of plan variants needs --dataset-root and --pointnet-path
-    assert "dataset_root is needed by the variants physics, bc" in capsys.readouterr().err
+    assert main(["--tasks", "hammer"]) == 2  # a sweep of plan-space methods needs --dataset-root and --pointnet-path
+    assert "dataset_root is needed by the methods physics, bc" in capsys.readouterr().err
     for d, steps in (("short", 2), ("long", 3)):  # the same joint point at two budgets, in two sweeps
         rows = [{"timesteps": float(t), "frames": 10.0 * t, "window_success_rate": 0.1 * t} for t in range(1, steps + 1)]
         (tmp_path / d / "points").mkdir(parents=True)
         (tmp_path / d / "points" / "ln-hammer-joint-k0-seed0.json").write_text(json.dumps(
             {"name": "ln-hammer-joint-k0-seed0", "rows": rows,
-             "point": {"task": "hammer", "variant": "joint", "demo_steps": 0, "seed": 0}}))
+             "point": {"task": "hammer", "method": "joint", "demo_steps": 0, "seed": 0}}))
     both = read_summaries([str(tmp_path / "short"), str(tmp_path / "long")])
     assert sorted(both) == ["ln-hammer-joint-k0-seed0@2", "ln-hammer-joint-k0-seed0@3"]
     assert main(["--draw-from", f"{tmp_path / 'short'},{tmp_path / 'long'}", "--output-dir", str(tmp_path / "fig")]) == 0
@@ -319,7 +319,7 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     monkeypatch.setenv("PREFECT_HOME", str(tmp_path / "prefect"))
-    kwargs = {"tasks": ["hammer"], "variants": ["physics", "joint"], "demo_steps": [2], "seeds": [0],
+    kwargs = {"tasks": ["hammer"], "methods": ["physics", "joint"], "demo_steps": [2], "seeds": [0],
               "ln": {"timesteps": 8, "steps_per_update": 4}, "eval_scenes": 1, "workers": 2, "n_points": 64,
               "output_dir": str(tmp_path / "sweep")}  # the flow's overrides, as a deployment run passes them
     with pytest.raises(ValueError, match="demo_steps=4 exceeds the 3 hammer demonstrations"):
@@ -339,7 +339,7 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
     assert again == first
     runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
     assert len(runs) == 2
-    grown = ablation(str(tiny_dataset), str(pointnet_path), {**kwargs, "variants": ["physics"], "seeds": [0, 1]})
+    grown = ablation(str(tiny_dataset), str(pointnet_path), {**kwargs, "methods": ["physics"], "seeds": [0, 1]})
     assert sorted(grown) == ["ln-hammer-physics-k2-seed0", "ln-hammer-physics-k2-seed1"]
     assert grown["ln-hammer-physics-k2-seed0"] == first["ln-hammer-physics-k2-seed0"]  # reused, not re-run
     runs = mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''", output_format="list")
@@ -351,7 +351,7 @@ def test_ablation_sweep_runs_points_on_dask_and_resumes(tmp_path: Path, tiny_dat
         assert mlflow.get_run(s["run_id"]).data.tags["reevaluated_at_code"]
     assert len(mlflow.search_runs(experiment_names=["prl"], filter_string="tags.ln_point != ''",
                                   output_format="list")) == 3
-    joint = ablation(None, None, {**kwargs, "variants": ["joint"], "seeds": [1], "workers": 1,
+    joint = ablation(None, None, {**kwargs, "methods": ["joint"], "seeds": [1], "workers": 1,
                                   "output_dir": str(tmp_path / "joint")})  # joint control alone: no dataset
     assert sorted(joint) == ["ln-hammer-joint-k0-seed1"] and joint["ln-hammer-joint-k0-seed1"]["eval"]["n"] == 1
     assert not (tmp_path / "joint" / "demos").exists()

@@ -27,7 +27,7 @@ def run_summary() -> dict:
             {"timesteps": 128.0, "frames": 98560.0, "window_success_rate": 0.8125, "policy_loss": float("nan")}]
     outcomes = [{"seed": 10_000_000 + i, "plan": [0, 3, 2, 0, 0, 1], "success": i != 2, "measure": 1.234567,
                  "error": ""} for i in range(4)]
-    return {"point": {"task": "hammer", "variant": "physics", "demo_steps": 1280, "seed": 0},
+    return {"point": {"task": "hammer", "method": "physics", "demo_steps": 1280, "seed": 0},
             "name": "ln-hammer-physics-k1280-seed0", "run_id": "abc123", "rows": rows, "pretrain": [{"actor_loss": 1}],
             "checkpoint": "/home/someone/outputs/ablation/points/ln-hammer-physics-k1280-seed0.zip",
             "train_seconds": 1234.5678, "eval_seconds": 98.765,
@@ -182,7 +182,7 @@ def test_a_sweep_with_a_results_directory_resumes_from_committed_summaries(tmp_p
         ran.append(point.name)
         s = run_summary()
         outcomes = [{**o, "seed": seed} for o, seed in zip(s["eval"]["outcomes"], setup.eval_seeds)]
-        return {**s, "point": {"task": point.task, "variant": point.variant, "demo_steps": point.demo_steps,
+        return {**s, "point": {"task": point.task, "method": point.method, "demo_steps": point.demo_steps,
                                "seed": point.seed}, "name": point.name,
                 "eval": {"successes": sum(o["success"] for o in outcomes), "n": len(outcomes), "ci95": [0.1, 0.9],
                          "outcomes": outcomes}}
@@ -202,7 +202,7 @@ def test_a_sweep_with_a_results_directory_resumes_from_committed_summaries(tmp_p
     monkeypatch.setattr(ln_results, "run_point", fake_run_point)
     monkeypatch.setattr(ablation, "_fan_out", in_process)
     monkeypatch.setattr(ablation, "committed_summaries", committed)
-    kwargs = {"tasks": ["hammer"], "variants": ["physics", "joint"], "demo_steps": [2], "seeds": [0],
+    kwargs = {"tasks": ["hammer"], "methods": ["physics", "joint"], "demo_steps": [2], "seeds": [0],
               "eval_scenes": 3, "output_dir": str(out), "results_dir": str(tmp_path / "results")}
     first = ablation.ablation(str(root), str(tmp_path / "pn.pt"), kwargs)
     assert sorted(ran) == ["ln-hammer-joint-k0-seed0", "ln-hammer-physics-k2-seed0"]

@@ -164,7 +164,7 @@ def test_ablation_config_names_bad_values(tmp_path: Path) -> None:
     cfg = make_ablation_config("data", "pn.pt", seeds=[0, 1], ln={"timesteps": 8, "steps_per_update": 4})
     assert (cfg.dataset_root, cfg.seeds, cfg.demo_steps, cfg.ln.timesteps, cfg.ln.n_envs) == \
         (Path("data"), (0, 1), (0, 1280), 8, 1)
-    for overrides, match in [({"variants": ["ppo"]}, "unknown variant 'ppo' in variants"),
+    for overrides, match in [({"methods": ["ppo"]}, "unknown method 'ppo' in methods"),
                              ({"tasks": ["nail"]}, "unknown task 'nail' in tasks"),
                              ({"seeds": [-1]}, r"seeds must be non-negative integers .*got \(-1,\)"),
                              ({"eval_scenes": 0}, "eval_scenes must be an integer >= 1, got 0"),
@@ -174,21 +174,21 @@ def test_ablation_config_names_bad_values(tmp_path: Path) -> None:
             make_ablation_config("data", "pn.pt", **overrides)
 
 
-def test_a_sweep_runs_the_papers_variants_unless_told() -> None:
-    """The default sweep is the paper's three variants; the gated reward (not the paper's) only when named."""
-    assert make_ablation_config("data", "pn.pt").variants == ("physics", "bc", "joint")
-    assert make_ablation_config("data", "pn.pt", variants=["physics_gated"]).variants == ("physics_gated",)
+def test_a_sweep_runs_the_papers_methods_unless_told() -> None:
+    """The default sweep is the paper's three methods; the gated reward (not the paper's) only when named."""
+    assert make_ablation_config("data", "pn.pt").methods == ("physics", "bc", "joint")
+    assert make_ablation_config("data", "pn.pt", methods=["physics_gated"]).methods == ("physics_gated",)
     with pytest.raises(ConfigError, match="physics_gated"):
-        make_ablation_config(variants=["physics_gated"])  # a plan variant: it needs the demonstrations
+        make_ablation_config(methods=["physics_gated"])  # a plan-space method: it needs the demonstrations
 
 
 def test_only_a_joint_control_sweep_runs_without_a_dataset() -> None:
-    joint = make_ablation_config(variants=["joint"], seeds=[2])
-    assert (joint.dataset_root, joint.pointnet_path, joint.variants) == (None, None, ("joint",))
-    with pytest.raises(ConfigError, match="dataset_root is needed by the variants physics, bc"):
-        make_ablation_config(variants=["joint", "physics", "bc"])
-    with pytest.raises(ConfigError, match="pointnet_path is needed by the variants bc"):
-        make_ablation_config("data", variants=["bc"])
+    joint = make_ablation_config(methods=["joint"], seeds=[2])
+    assert (joint.dataset_root, joint.pointnet_path, joint.methods) == (None, None, ("joint",))
+    with pytest.raises(ConfigError, match="dataset_root is needed by the methods physics, bc"):
+        make_ablation_config(methods=["joint", "physics", "bc"])
+    with pytest.raises(ConfigError, match="pointnet_path is needed by the methods bc"):
+        make_ablation_config("data", methods=["bc"])
     with pytest.raises(ConfigError, match="dataset_root must be a path, got 3"):
         make_ablation_config(3, "pn.pt")
 

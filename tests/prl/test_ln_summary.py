@@ -43,6 +43,17 @@ def test_fixtures_are_in_their_one_byte_form(tmp_path: Path) -> None:
     assert text.startswith("{\n \"code_version\"") and text.endswith("}\n")  # sorted keys, indent 1
 
 
+def test_a_summary_that_names_its_method_variant_still_loads(tmp_path: Path) -> None:
+    """Summaries written before the LN's methods were called methods name them ``point.variant``: read as
+    ``point.method``, the same summary as the fixture's."""
+    old = json.loads(ONE.read_text())
+    old["point"]["variant"] = old["point"].pop("method")
+    path = tmp_path / ONE.name
+    path.write_text(json.dumps(old))
+    assert read_summary(path) == read_summary(ONE)
+    assert read_summary(path)["point"] == {"task": "hammer", "method": "physics", "demo_steps": 1280, "seed": 0}
+
+
 def test_compact_rounds_curves_not_settings() -> None:
     import numpy as np
 

@@ -73,7 +73,7 @@ def test_the_plan_and_what_is_missing() -> None:
     summaries = read_summaries(FIXTURES)
     missing = missing_points(summaries, plan)
     assert len(plan) - len(missing) == 5
-    joint = next(s for s in summaries.values() if s["point"]["variant"] == "joint")
+    joint = next(s for s in summaries.values() if s["point"]["method"] == "joint")
     longer = {**joint, "timesteps": 492_800}
     assert not any(p.equal_frames for p in plan if p.done_by(joint))
     assert [p.equal_frames for p in plan if p.done_by(longer)] == [True]
@@ -110,7 +110,7 @@ def test_the_report_shows_the_reference_plans_on_the_points_scenes(tmp_path: Pat
             "| prior-sampled plan (reference) | - | 1/4 | 1/4 = 0.25 (0.05-0.70) | - | not trained |",
             "| RN argmax plan (reference) | - | 3/4 | 3/4 = 0.75 (0.30-0.95) | - | not trained |"]
     joint = "| joint control | 0 | 0/4 | 0/4 = 0.00 (0.00-0.49) | 0.00 (0.00-0.00) | 0.25 -> 0.50 |"
-    assert "\n".join([joint, *rows]) in text  # in the hammer's table, after its variants
+    assert "\n".join([joint, *rows]) in text  # in the hammer's table, after its methods
     assert ("Reference rows (`reference-hammer.json`): the task's expert plan, a plan sampled from its prior per "
             "scene and the RN argmax plan, executed on the 4 scenes of eval seed 0 (scene seeds 10000000 to "
             "10000003); the RN is `rn-seed0.pt`. The same scenes as every point's above. The same code version as "
@@ -210,7 +210,7 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
 
 
 def test_the_reward_table_counts_failures_paid_like_a_success() -> None:
-    """Failures paid at least the least-paid success, per variant and seed, counted by hand: the unscrew's least
+    """Failures paid at least the least-paid success, per method and seed, counted by hand: the unscrew's least
     success is paid 23.5; a failure at 120 (gripped no more) and one tied at 23.5 count, one at 3.0 does not, and an
     outcome without a measure is left out. The sweep's failures are all paid less than its successes."""
     from prl.report import Group, reward_table
@@ -244,7 +244,7 @@ def test_stale_summaries_are_listed_apart_with_the_files_that_changed(tmp_path: 
     shutil.copytree(FIXTURES, tmp_path / "ln")
     for path in (tmp_path / "ln").glob("*.json"):
         s = json.loads(path.read_text())
-        task, method = (s["point"]["task"], s["point"]["variant"]) if "point" in s else (s["task"], "reference")
+        task, method = (s["point"]["task"], s["point"]["method"]) if "point" in s else (s["task"], "reference")
         files = {**today(task, method), **({"envs/joint_env.py": "old"} if method == "joint" else {})}
         path.write_bytes(summary_bytes({**s, "code_files": files, "code_version": version_of(files)}))
     md = tmp_path / "out" / "results.md"

@@ -240,5 +240,5 @@ def test_no_committed_plan_space_summary_is_stale() -> None:
     references = {reference_file_name(t).removesuffix(".json"): r for t, r in read_references(results).items()}
     stale = stale_points({**summaries, **references})
     plan_stale = {n: why for n, why in stale.items()
-                  if n in references or method_family(summaries[n]["point"]["variant"]) == "plan"}
+                  if n in references or method_family(summaries[n]["point"]["method"]) == "plan"}
     assert plan_stale == {}
