@@ -17,11 +17,11 @@ prior on the changed family's scenes (plan i on scene i mod --scenes), and from 
 ``envs.families.family_decodings`` does with demos, the plan each RN decoding would execute if the RN read the family
 perfectly (the successes' per-dimension shares; the library is the distinct successful plans); those plans then run
 on the probe's scenes. A family whose decoded plans fail there cannot be solved by the paper's decoding reading the
-family alone, however many demos are made (docs/tasks.md, hammer_mixed).
+family alone, however many demos are made (docs/guide/tasks.md, hammer_mixed).
 
 Each plan's line also gives its mean reward (the task's measure, what the LN's A2C is paid) on the probe's scenes,
 and the probe names the *reward traps*: plans that earn a higher mean reward than the most successful plan tried
-while succeeding less often. A2C paid that reward drifts towards them after its pre-training (docs/tasks.md,
+while succeeding less often. A2C paid that reward drifts towards them after its pre-training (docs/guide/tasks.md,
 unscrew_mixed: the flasks' spun caps), so a family without traps among the plans an RL agent finds is the safer
 design.
 """

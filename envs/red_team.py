@@ -145,7 +145,7 @@ def report(results: list[SearchResult], command: str, rl: list[dict[str, Any]] =
     plb = load_plb()
     lines = ["# Red-team search", "",
              (f"*Made by `{command}` on {datetime.date.today().isoformat()}, code {code_version()}.* "
-              "What the search found is judged in [red_team.md](red_team.md)."), ""]
+              "What the search found is judged in [guide/red_team.md](guide/red_team.md)."), ""]
     for res in results:
         expert = list(task_class(res.task).expert_plan)
         lines += [f"## {res.task}", "",

@@ -58,7 +58,7 @@ def submit_shard(client: Client, spec: ShardSpec) -> Future:
     (rounds of 32) to 1,400 (rounds of 8) shard-rounds, and each task run cost this process about 60 ms of a core
     to submit (Prefect serialises its settings context with every submission) and Prefect's server about as much to
     record, taken from the two workers on a 2-core machine (2 workers took 4.6% longer with rounds of 32,
-    ``bench/bench_synthesis.py --submit both``, and 20% longer with rounds of 8 in a probe, ``docs/speed.md``), and
+    ``bench/bench_synthesis.py --submit both``, and 20% longer with rounds of 8 in a probe, ``docs/archive/speed.md``), and
     printed a line per shard-round. The synthesis subflow's per-round record (the ``synthesis-rounds`` table) and
     progress bar say what those task runs said."""
     return client.submit(synthesize_shard, spec, pure=False,

@@ -1,4 +1,4 @@
-"""LeRobot dataset export (format v3.0) of saved demonstrations (docs/design.md "Export").
+"""LeRobot dataset export (format v3.0) of saved demonstrations (docs/guide/design.md "Export").
 
 One episode per demonstration (``prl.demo.Demo``), one frame per recorded step, the episode's
 task being the demo's task sentence; the frame layout is ``prl.export_schema.FEATURES``. The

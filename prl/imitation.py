@@ -7,7 +7,7 @@ action chunk's delta timestamps, its ``ACTPolicy`` and pre/post-processors (norm
 stats), its optimizer preset, ``policy.forward`` as the loss; the result is saved with lerobot's
 ``save_pretrained`` (``config.json``, ``model.safetensors`` and the processors' JSON and safetensors: nothing
 executes code on load). ``ImitationActor`` loads it and acts with ``select_action`` (a chunk, then one action a
-step), as lerobot's rollout does. The same training runs from lerobot's own command line (``docs/design.md``
+step), as lerobot's rollout does. The same training runs from lerobot's own command line (``docs/guide/design.md``
 "Imitation in joint space").
 """
 

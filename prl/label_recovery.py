@@ -1,4 +1,4 @@
-"""Label recovery (docs/design.md "Labels"): recompute a demonstration's plan vector from its recorded data.
+"""Label recovery (docs/guide/design.md "Labels"): recompute a demonstration's plan vector from its recorded data.
 
 A demonstration (``prl.demo.Demo``, or its ``.npz``) holds the commanded plan ``a0..a5`` and what
 the simulator recorded while executing it. :func:`recover_plan` ignores the plan and recomputes each

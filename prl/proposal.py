@@ -13,7 +13,7 @@ so no choice is ever dropped. Plans are drawn from the defensive mixture ``m = d
 (each plan from the prior with probability ``defensive``, else from q), so that every kept plan's weight
 ``p / m`` is at most ``1 / defensive``: the per-dimension floor alone bounds a weight only by
 ((1 + floor) / floor) ** 6, and on the tweeze one demo of 2,000 came to weigh 224x the mean (an effective sample
-size of 60; docs/speed.md). A product of per-dimension categoricals cannot hold the joint shape of the successful
+size of 60; docs/archive/speed.md). A product of per-dimension categoricals cannot hold the joint shape of the successful
 plans (the tweeze's pinches and disks mix into plans that are neither), so the adapted draws may also **replay**:
 with probability ``replay`` an adapted draw is the plan of one of the earlier rounds' successes, chosen uniformly
 among them (a plan that succeeded k times is chosen k times as often), else a draw from q. The mixture is then
@@ -25,7 +25,7 @@ which is still exact to evaluate for any plan, and every weight is still at most
 Counted as above, the update and the replays follow the successes *of the proposal*, m(plan) P(success | plan):
 each round sharpens the proposal towards the plans that succeed most often (the mode), so its kept plans stand
 for fewer and fewer of the prior's, and the weights that restore the prior spread (an effective sample size of
-60 of 2,000 tweeze demos; docs/speed.md). With ``weighted`` each success counts by its importance weight
+60 of 2,000 tweeze demos; docs/archive/speed.md). With ``weighted`` each success counts by its importance weight
 ``w = p / m`` (the likelihood-ratio cross-entropy update of rare-event simulation), and the frequencies are taken
 over the successes of every round so far:
 
@@ -34,7 +34,7 @@ over the successes of every round so far:
 
 The weighted successes are a sample of p(plan | success), the distribution a prior-only run keeps, so q moves
 towards that posterior's per-dimension marginals (a fixed point, not a mode) and the replays draw from its
-empirical joint, which keeps the kept plans' weights evener. Measured (docs/speed.md): on the tweeze 4.5x the
+empirical joint, which keeps the kept plans' weights evener. Measured (docs/archive/speed.md): on the tweeze 4.5x the
 effective sample size at 1.7x the attempts; on the hammer and the unscrew little change.
 
 The proposal of round r depends only on the attempts of rounds < r, which are themselves fixed by the run seed:

@@ -1,4 +1,4 @@
-"""Shared checks of physical honesty (docs/design.md "Honesty rules") for the task tests: the tool is a free body held by
+"""Shared checks of physical honesty (docs/guide/design.md "Honesty rules") for the task tests: the tool is a free body held by
 contact only, and nothing writes a pose, velocity or joint state while a plan executes."""
 
 from __future__ import annotations

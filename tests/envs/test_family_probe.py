@@ -114,7 +114,7 @@ def test_plan_record_averages_the_reward_over_successes_and_failures() -> None:
 
 
 def test_reward_traps_are_the_better_paid_less_successful_plans() -> None:
-    """The unscrew_mixed flasks (docs/tasks.md): the anchor-2 disk opens 20/20 turning the cap 65 deg; the anchor-1
+    """The unscrew_mixed flasks (docs/guide/tasks.md): the anchor-2 disk opens 20/20 turning the cap 65 deg; the anchor-1
     disk 18/20 at 114 deg on average, a push that spins the cap 0/20 at 158 deg: both are traps; a plan paid less
     (a wrap, 0/20 at 3 deg) and one as successful but paid more are not."""
     disk2 = PlanRecord((0, 3, 2, 3, 5, 1), 20, 20, 65.0)

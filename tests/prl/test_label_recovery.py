@@ -1,4 +1,4 @@
-"""Label recovery (docs/design.md "Labels"): hand-built recordings with hand-computed labels, and expert episodes."""
+"""Label recovery (docs/guide/design.md "Labels"): hand-built recordings with hand-computed labels, and expert episodes."""
 
 from __future__ import annotations
 
