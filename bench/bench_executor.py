@@ -1,6 +1,7 @@
 """Benchmark (not a test): plan-executor speed vs raw PhysX and vs ManiSkill's ``env.step``.
 
-On the hammer scene, in one process, measured side by side (docs/design.md "Speed"; results in docs/speed.md):
+On the hammer scene, in one process, measured side by side (docs/guide/design.md "Speed"; results in
+docs/archive/speed.md):
 
 (a) raw ``scene.step()`` frames/s on the scene where the hand holds the hammer (the limit);
 (b) frames/s of ``PlanExecutor`` running the full expert plan episode (3 s of simulated time, recording

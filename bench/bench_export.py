@@ -10,8 +10,8 @@ no fingerprint hashing, the numeric columns handed to ``datasets`` as Arrow arra
 also ``fast_writes`` in N processes merged by lerobot (``export_lerobot(workers=N)``, at least
 ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process). Each export is the real one
 (``prl.export.export_lerobot``: write, reload, validate, move into place). Prints the medians, their ratio, and
-whether the datasets hold the same files as lerobot's writes: the same bytes, and for the parquet files the same
-table and metadata but for the fingerprint that ``datasets.map`` stamps (lerobot's embedding pass is one).
+whether the datasets hold the same files as lerobot's writes (``prl.export_compare``: the same bytes, and for the
+parquet files the same table and metadata but for the fingerprint that ``datasets.map`` stamps).
 ``python -m bench.bench_export [--task hammer] [--demos 40] [--rounds 2] [--demo-dir DIR] [--workers N]``
 """
 
@@ -19,42 +19,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
 from bench.bench_export_video import _demos
-
-
-def dataset_files(root: Path) -> dict[str, object]:
-    """Every file of a dataset by its relative path: its bytes, or for a parquet file its table and schema
-    metadata without ``datasets``' fingerprint (lerobot's image-embedding pass, a ``datasets.map``, stamps one; the
-    fast path, which skips that pass, does not)."""
-    import pyarrow.parquet as pq  # heavy: pyarrow
-
-    out: dict[str, object] = {}
-    for p in sorted(root.rglob("*")):
-        if not p.is_file():
-            continue
-        if p.suffix != ".parquet":
-            out[str(p.relative_to(root))] = p.read_bytes()
-            continue
-        table = pq.read_table(p)
-        meta = dict(table.schema.metadata or {})
-        if b"huggingface" in meta:
-            hf = json.loads(meta[b"huggingface"])
-            hf.pop("fingerprint", None)
-            meta[b"huggingface"] = json.dumps(hf, sort_keys=True).encode()
-        out[str(p.relative_to(root))] = (table.replace_schema_metadata(None), meta)
-    return out
-
-
-def _same(a: object, b: object) -> bool:
-    if isinstance(a, tuple) and isinstance(b, tuple):
-        return a[0].equals(b[0]) and a[1] == b[1]
-    return a == b
+from prl.export_compare import dataset_files, differing_files
 
 
 def main() -> None:
@@ -114,8 +85,7 @@ def main() -> None:
               f"before / the mode with it: prl statistics {med[modes[1]] / med[modes[2]]:.2f}x, stats.json once, no "
               f"fingerprint, Arrow columns {med[modes[2]] / med[modes[3]]:.2f}x")
         for mode in modes[1:]:
-            differ = sorted(k for k in files[modes[0]].keys() | files[mode].keys()
-                            if not _same(files[modes[0]].get(k), files[mode].get(k)))
+            differ = differing_files(files[modes[0]], files[mode])
             print(f"{mode}: same files as lerobot's writes: "
                   + ("yes, all " + str(len(files[mode])) if not differ else "NO: " + ", ".join(differ)))
 

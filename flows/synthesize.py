@@ -77,7 +77,8 @@ def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int,
 #: and the periodic callbacks of every server (scheduler, nannies, workers) slowed from 20 ms (event-loop health
 #: tick), 500 ms (system monitor, which feeds a dashboard the local cluster does not have) and 100 ms (the memory
 #: monitor's look at each worker's size): an idle 2-worker cluster took 10.7% of a core with distributed's intervals
-#: and 2.2% with these, this process's share 4.1-5.7% against 1.2-1.3% (``bench/bench_dask_idle.py``, 2026-12-05).
+#: and 2.2% with these, this process's share 4.1-5.7% against 1.2-1.3% (2026-12-05, by a probe since removed,
+#: ``bench/bench_dask_idle.py`` in git history; under load ``python -m bench.bench_synthesis --dask-config both``).
 LOCAL_DASK_CONFIG: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
@@ -98,7 +99,8 @@ def make_task_runner(workers: int, dask_address: str | None) -> DaskTaskRunner:
     config each nanny hands its worker). It keeps a tree of the running task's stacks per second for the last
     1,000 seconds: Python objects made after ``fast_resets()`` froze
     the heap, which every scene rebuild's ``gc.collect()`` walks, more the older the worker (an LN point 32 min into training spent 46%
-    of its training thread in that walk, by py-spy; ``bench/bench_worker_profile.py``). The local cluster's
+    of its training thread in that walk, by py-spy; a probe since removed, ``bench/bench_worker_profile.py`` in git
+    history; ``tests/envs/test_synthesis.py`` checks the workers run no profiler). The local cluster's
     scheduler and nannies run in this process, and each started the same profiler on this process's event loop
     (``distributed.core.Server``): a thread sampling every thread's stack every 10 ms, about 4% of a core taken from
     the workers on two cores, for a profile no one can see (the cluster has no dashboard). So a local cluster

@@ -50,7 +50,8 @@ def library_plan(probs: Sequence[np.ndarray], library: Any, prior: Sequence[np.n
 
 def library_scores(probs: Sequence[np.ndarray], lib: np.ndarray, prior: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """(N, K) joint log-scores ``sum_i log p_i(choice_i)`` of the K rows of a checked library ``lib`` (minus the
-    prior's, when given) for :func:`library_plan` and the critic's candidates (``prl.critic.critic_plan``)."""
+    prior's, when given) for :func:`library_plan` and the success critic's candidates
+    (``experiments.success_critic_model.critic_plan``)."""
     dims = [p.shape[1] for p in probs]
     # the floor keeps log finite where a probability underflows to 0
     score = sum(np.log(np.maximum(p, 1e-30))[:, lib[:, i]] for i, p in enumerate(probs))

@@ -184,7 +184,7 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
     import datasets.arrow_dataset
     from lerobot.datasets import dataset_metadata
 
-    from bench.bench_export import _same, dataset_files
+    from prl.export_compare import dataset_files, differing_files
 
     patched = (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint,
                datasets.arrow_dataset.Dataset.__dict__["from_dict"])
@@ -194,9 +194,36 @@ def test_fast_writes_give_lerobots_files(tmp_path: Path, synthetic_paths: list[P
     fast = export_lerobot(synthetic_paths, tmp_path / "fast", repo_id=REPO_ID, per_episode_label=labels)
     want, got = dataset_files(slow.root), dataset_files(fast.root)
     assert "meta/stats.json" in got and sorted(got) == sorted(want)
-    assert [k for k in want if not _same(want[k], got[k])] == []
+    assert differing_files(want, got) == []
     assert (dataset_metadata.write_stats, datasets.arrow_dataset.generate_fingerprint,
             datasets.arrow_dataset.Dataset.__dict__["from_dict"]) == patched
+
+
+def test_the_comparison_leaves_out_the_fingerprint_and_names_what_differs(tmp_path: Path) -> None:
+    """``prl.export_compare``: a parquet file is its table and metadata but for ``datasets``' fingerprint; a file that
+    one side lacks, other bytes, another table or other metadata differ."""
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from prl.export_compare import dataset_files, differing_files
+
+    def write(root: Path, fingerprint: str, values: list[int], info: bytes = b"{}", extra: bool = False) -> Path:
+        (root / "data").mkdir(parents=True)
+        hf = json.dumps({"info": {"features": {}}, "fingerprint": fingerprint}).encode()
+        pq.write_table(pa.table({"x": values}).replace_schema_metadata({b"huggingface": hf}), root / "data" / "a.parquet")
+        (root / "info.json").write_bytes(info)
+        if extra:
+            (root / "extra.txt").write_text("x")
+        return root
+
+    base = dataset_files(write(tmp_path / "a", "f1", [1, 2]))
+    assert sorted(base) == ["data/a.parquet", "info.json"]
+    assert differing_files(base, dataset_files(write(tmp_path / "b", "f2", [1, 2]))) == []
+    assert differing_files(base, dataset_files(write(tmp_path / "c", "f1", [1, 3]))) == ["data/a.parquet"]
+    assert differing_files(base, dataset_files(write(tmp_path / "d", "f1", [1, 2], b"{ }", True))) == \
+        ["extra.txt", "info.json"]
 
 
 @pytest.mark.filterwarnings("ignore:Conversion of an array with ndim > 0:DeprecationWarning")  # datasets' own path

@@ -416,7 +416,7 @@ def test_plot_rn_probabilities(tmp_path: Path) -> None:
     assert len(fig.axes) == 2 * 6  # a row per task, a chart per dimension: what mlflow.log_figure logs
     with pytest.raises(ValueError, match="'hammer'"):
         plot_rn_probabilities({"hammer": probs["hammer"][:5]}, names, choices, tmp_path / "bad.png")
-    long = "unscrew: prior, another dataset (seed 1), trained here"  # a row label the bench draws
+    long = "unscrew: prior, another dataset (seed 1), trained here"  # a row label experiments.proposal_rn draws
     fig = plot_rn_probabilities({long: probs["hammer"]}, names, choices, tmp_path / "long.png")
     label = fig.axes[0].yaxis.label
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -45,9 +45,9 @@ Reported:
    four-task paper run re-exported on their own, without the pipeline's RN stage. ``--adaptive-seed`` names the
    adaptive run's seed where it is not the prior run's (an adaptive run set against prior-only runs of new seeds).
 
-``python -m bench.bench_proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--adaptive-seed S]
+``python -m experiments.proposal_rn --prior-dir P --adaptive-dir A --task hammer [--seed 0] [--adaptive-seed S]
 [--scenes 50] [--init-seeds 5] [--second-prior-dir P2 --second-prior-seed 1 ...] [--pointnet models/pointnet-<key>.pt]
-[--markdown docs/proposal_rn_hammer.md]``
+[--markdown <dir>/proposal_rn_hammer.md]``
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # ``python bench/bench_proposal_rn.py``
+if __package__ in (None, ""):  # ``python experiments/proposal_rn.py``
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from prl.config import PipelineConfig
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", type=int, default=50, help="unseen scenes each RN's plan is executed on")
     ap.add_argument("--rn-epochs", type=int, default=200, help="epochs of the raw RN (the paper profile's 200)")
     ap.add_argument("--val-fraction", type=float, default=defaults.rn_val_fraction)
-    ap.add_argument("--out", type=Path, default=Path("outputs/bench_proposal_rn"))
+    ap.add_argument("--out", type=Path, default=Path("outputs/experiments/proposal_rn"))
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
     ap.add_argument("--init-seeds", type=int, default=1,
                     help="K >= 2: also Fig 7 averaged over K RNs per side trained here (4K more RNs, K more per "
@@ -260,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     second_lines = [f"- another prior run `{directory}` (seed {s}): {len(data[second]['x'])} demos, "
                     f"{len(data[second]['val'])} held out" for second, (directory, s) in seconds.items()]
     lines = [(f"RN from prior-only demos against RN from adaptive-proposal demos, task `{args.task}` "
-             f"(`python -m bench.bench_proposal_rn`)."), "",
+             f"(`python -m experiments.proposal_rn`)."), "",
              f"- prior run `{args.prior_dir}`: {len(p['x'])} demos, {len(p['val'])} held out",
              (f"- adaptive run `{args.adaptive_dir}` (seed {adaptive_seed}): {len(a['x'])} demos, {len(a['val'])} "
              f"held out, effective sample size of their weights {effective_sample_size(a['weights']):.0f}, largest "

@@ -14,7 +14,7 @@ Reads only the attempt logs of a finished (or running) synthesis directory (``ou
   a choice's share between all the kept plans of this run, weighted by prior / proposal (and raw), and the kept plans
   of each prior-only run; and the prior-only runs against each other, the floor two samples of the same size give.
 
-``python -m bench.bench_proposal --synthesis-dir outputs/synthesis/seed0-shards16-frames750-adaptive-r32-s0.5-f0.2
+``python -m experiments.proposal_record --synthesis-dir outputs/synthesis/seed0-shards16-frames750-adaptive-r32-s0.5-f0.2
 [--prior-synthesis-dir outputs/synthesis/seed0-shards16-frames750-prior ...] [--markdown docs/synthesis_record.md]``
 """
 
@@ -98,7 +98,7 @@ def shares_markdown(this: dict[str, tuple[np.ndarray, np.ndarray]],
 
 
 def markdown(records: dict[str, dict], synthesis_dir: Path) -> str:
-    lines = [f"Synthesis record of `{synthesis_dir.name}` (`python -m bench.bench_proposal`).", ""]
+    lines = [f"Synthesis record of `{synthesis_dir.name}` (`python -m experiments.proposal_record`).", ""]
     lines += [("| task | round | attempts | successes | yield (95% CI) | kept so far | distinct kept plans | "
                "entropy a0..a5 (nats) | effective sample size |"), "|---|---|---|---|---|---|---|---|---|"]
     for task, rec in records.items():

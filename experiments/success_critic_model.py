@@ -1,11 +1,14 @@
 """A success critic: P(success | x, plan), learnt from every synthesis attempt, to rank the RN's plans (issue #26).
+An experiment (``python -m experiments.success_critic``), not a pipeline stage; not to be confused with A2C's value
+critic (``prl.ln``).
 
 Why. The RN learns p(plan | x, success) with the plans drawn from the task's prior (Eq 3 on the demos, weighted by
 prior / proposal): by Bayes that is ``prior(plan) * P(success | plan, x)`` up to a constant, so its mode is the plan
-most often *kept*, not the one most likely to succeed. On the mixed variants the two differ (``docs/tasks.md``,
-mixed variants: the wide lids' most frequent successful plan opens about half of them, the hand-written one
-nearly all), and more demos sharpen that mode instead of moving it. Dividing the RN's per-dimension heads by the
-prior (decoding ``rn_success``) is the same idea on a factorised model, which the ratio amplifies the errors of.
+most often *kept*, not the one most likely to succeed. On the mixed variants the two differ
+(``docs/guide/tasks.md``, mixed variants: the wide lids' most frequent successful plan opens about half of them, the
+hand-written one nearly all), and more demos sharpen that mode instead of moving it. Dividing the RN's per-dimension
+heads by the prior (decoding ``rn_success``) is the same idea on a factorised model, which the ratio amplifies the
+errors of.
 The attempt log holds what the demos leave out, the failures: a classifier of the outcome of (x, plan) trained on
 all attempts estimates ``P(success | x, plan)`` directly. The adaptive proposal's plans do not bias it (it
 conditions on the plan; the proposal only decides where it sees many examples).

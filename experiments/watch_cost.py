@@ -1,4 +1,4 @@
-"""What the tasks' per-frame watches cost: ``python -m bench.bench_watch [--tasks hammer,sweep,tweeze] [--scenes 8]``.
+"""What the tasks' per-frame watches cost: ``python -m experiments.watch_cost [--tasks hammer,sweep,tweeze] [--scenes 8]``.
 
 A watch (``_after_simulation_step``: the hammer's nail credit, the sweep's cube watch, the tweeze's hand-on-cube
 watch) runs after every physics frame of a plan episode. Per task, the expert plan runs on the same scenes with

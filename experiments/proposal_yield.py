@@ -7,7 +7,7 @@ and setting: attempts, demos kept, yield with its 95% Wilson interval, distinct 
 per-dimension entropy of the kept plans (nats), the weights' effective sample size, and the physics frames per
 attempt. Yields do not depend on the machine's load, so settings may run one after another.
 
-``python -m bench.bench_yield --tasks tweeze --demos 400 --n-shards 8 --round-attempts 8 --replay 0,0.5``
+``python -m experiments.proposal_yield --tasks tweeze --demos 400 --n-shards 8 --round-attempts 8 --replay 0,0.5``
 (``--prior`` adds the prior-only run of the same scenes).
 """
 
@@ -34,8 +34,8 @@ def run_setting(tasks: list[str], demos: int, n_shards: int, out: Path, proposal
                 smoothing: float, floor: float, defensive: float, replay: float,
                 weighted: bool = False) -> dict[str, dict]:
     """Synthesise (or resume, or read) one setting; the record of each task."""
-    from bench.bench_proposal import task_record
     from envs.synthesis import run_shard, synthesize_rounds, task_attempts  # heavy: loads the simulator
+    from experiments.proposal_record import task_record
     from flows.synthesize import shard_specs, synthesis_dir
     from prl.plb import load_plb
 
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--weighted", choices=("no", "yes", "both"), default="no",
                         help="count successes by their importance weights in the update and replays (prl.proposal)")
     parser.add_argument("--prior", action="store_true", help="also the prior-only run")
-    parser.add_argument("--output-dir", type=Path, default=Path("outputs/bench_yield"))
+    parser.add_argument("--output-dir", type=Path, default=Path("outputs/experiments/proposal_yield"))
     parser.add_argument("--markdown", type=Path, default=None, help="also write the table to this file")
     args = parser.parse_args(argv)
     tasks = [t for t in args.tasks.split(",") if t]
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     try:
         for name, kind, replay, weighted in settings:
-            print(f"[bench_yield] {name}", file=sys.stderr, flush=True)
+            print(f"[proposal_yield] {name}", file=sys.stderr, flush=True)
             results.append((name, run_setting(tasks, args.demos, args.n_shards, args.output_dir, kind,
                                               args.round_attempts, args.smoothing, args.floor, args.defensive,
                                               replay, weighted)))

@@ -1,8 +1,9 @@
-"""Train the success critic (``prl.critic``) on a task's synthesis attempts and run the RN's plans re-ranked by it.
+"""Train the success critic (``experiments.success_critic_model``) on a task's synthesis attempts and run the RN's
+plans re-ranked by it. An experiment, not a pipeline stage: no flow calls it (``experiments/README.md``).
 
-``python -m flows.critic --synthesis-dir <output-dir>/synthesis/<key> --task hammer_mixed --rn-path
+``python -m experiments.success_critic --synthesis-dir <output-dir>/synthesis/<key> --task hammer_mixed --rn-path
 <output-dir>/models/rn-seed0.pt [--scenes 50] [--top-k 20]`` computes x of every attempt of the task (the
-failures' by resetting and observing their scenes, ``envs.attempt_features``; cached beside the critic),
+failures' by resetting and observing their scenes, ``experiments.attempt_features``; cached beside the critic),
 trains the critic on them with a fifth of the scenes held out, saves it, and runs on the RN evaluation's unseen
 scenes (``envs.trials.eval_scene_seeds``): the RN's argmax (``rn``), its library plan (``rn_library``), the
 library plan of its ``top_k`` the critic rates highest (``rn_critic``) and the library plan the critic alone rates
@@ -22,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from experiments.success_critic_model import CriticConfig
 from flows.evaluate_rn import find_pointnet
 from prl.atomic import atomic_file
-from prl.critic import CriticConfig
 from prl.stats import format_rate
 
 #: The plans run, in order: the RN's two decodings without the critic, then the two with it.
@@ -46,9 +47,9 @@ def attempts_of(synthesis_dir: Path, task: str) -> tuple[np.ndarray, np.ndarray,
 
 def cached_features(path: Path, task: str, seeds: np.ndarray, pointnet_path: Path, n_points: int) -> np.ndarray:
     """x of the scenes of ``seeds``: read from ``path`` when it was computed for the same seeds, PointNet, point
-    count and code of the task's scenes (``prl.version.outcome_version``), else computed (``envs.attempt_features``)
-    and written there."""
-    from envs.attempt_features import attempt_features  # heavy: loads the simulator
+    count and code of the task's scenes (``prl.version.outcome_version``), else computed
+    (``experiments.attempt_features``) and written there."""
+    from experiments.attempt_features import attempt_features  # heavy: loads the simulator
     from prl.pointnet import load_pointnet
     from prl.version import file_digest, outcome_version
 
@@ -69,7 +70,7 @@ def critic_policy(model: Any, critic: Any, pointnet: Any, task: str, seeds: list
                   top_k: int | None):
     """An ``envs.trials.Policy``: the critic's choice among the RN's ``top_k`` library plans (all of them when
     None) for the live scene."""
-    from prl.critic import critic_plan
+    from experiments.success_critic_model import critic_plan
     from prl.features import scene_features  # heavy: trimesh
     from prl.plb import load_plb
     from prl.rn_decode import predict_proba
@@ -98,7 +99,7 @@ def table_row(name: str, outcomes: list[Any], families: dict[int, int]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m flows.critic", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.success_critic", description=__doc__.split("\n\n")[0])
     parser.add_argument("--synthesis-dir", required=True, type=Path,
                         help="the run's synthesis directory, <output-dir>/synthesis/<key> (holds <task>/shard*/)")
     parser.add_argument("--task", required=True)
@@ -123,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     from envs.trials import eval_scene_seeds, run_policy  # heavy: loads the simulator
-    from prl.critic import save_critic, train_critic
+    from experiments.success_critic_model import save_critic, train_critic
     from prl.features import split_by_seed
     from prl.plb import load_plb
     from prl.pointnet import load_pointnet

@@ -1,4 +1,5 @@
-"""The RN's input x of every synthesis attempt, failures included (the training set of ``prl.critic``).
+"""The RN's input x of every synthesis attempt, failures included (the training set of the success critic,
+``experiments.success_critic_model``).
 
 A demo's x is stored with it; a failed attempt keeps only its scene seed and plan (``attempts.jsonl``). The
 observation phase does not depend on the plan (``PlanExecutor.observe``), so resetting the scene of the attempt's

@@ -1,8 +1,8 @@
-"""Benchmark: what two busy cores give two bare simulations, the ceiling of any orchestration's speed-up.
+"""Experiment: what two busy cores give two bare simulations, the ceiling of any orchestration's speed-up.
 
-``bench_synthesis`` takes 2 Dask workers' speed-up over 1 and splits it into the workers' busy share and their
+``bench.bench_synthesis`` takes 2 Dask workers' speed-up over 1 and splits it into the workers' busy share and their
 seconds per attempt; the second part is what the cores themselves give plus what runs beside the workers (the
-flow's process, Prefect's temporary server). This bench measures the first alone: the same shard's attempts (one
+flow's process, Prefect's temporary server). This experiment measures the first alone: the same shard's attempts (one
 task's shard 0 from the prior, the same seed, so the very same attempts and physics) run bare (``run_shard``: no
 Prefect, no Dask) in fresh processes, once by itself and once as ``--processes`` copies at the same time. Each
 process imports first and waits at a start line, so only the simulation is timed, side by side. The runs go
@@ -19,9 +19,9 @@ single-thread workers with the pipeline's settings (``flows.synthesize.local_clu
 per worker, the workers started and their imports done before the clock starts: what the Dask path costs beyond
 the cores.
 
-Measured (eight runs, 2026-12-06): ``docs/speed.md``, "What the two cores allow without any orchestration".
+Measured (eight runs, 2026-12-06): ``docs/archive/speed.md``, "What the two cores allow without any orchestration".
 
-``python -m bench.bench_cores [--task hammer] [--attempts 200] [--processes 2] [--repeats 1|2] [--pin]
+``python -m experiments.cores [--task hammer] [--attempts 200] [--processes 2] [--repeats 1|2] [--pin]
 [--beside-server] [--dask]``
 """
 
@@ -128,19 +128,19 @@ def _run(k: int, args: argparse.Namespace, root: Path) -> list[dict[str, float]]
     procs = []
     for i, out in enumerate(outs):
         out.mkdir(parents=True)
-        cmd = [sys.executable, "-m", "bench.bench_cores", "--child", str(out), "--go", str(go),
+        cmd = [sys.executable, "-m", "experiments.cores", "--child", str(out), "--go", str(go),
                "--task", args.task, "--attempts", str(args.attempts), "--seed", str(args.seed)]
         if args.pin:
             cmd += ["--core", str(cores[i % len(cores)])]
         procs.append(subprocess.Popen(cmd))
     while not all((out / "ready").exists() for out in outs):
         if any(p.poll() not in (None, 0) for p in procs):
-            raise RuntimeError(f"a bench process failed before its start (exit codes {[p.poll() for p in procs]})")
+            raise RuntimeError(f"a measured process failed before its start (exit codes {[p.poll() for p in procs]})")
         time.sleep(_POLL_S)
     go.touch()
     codes = [p.wait() for p in procs]
     if any(codes):
-        raise RuntimeError(f"a bench process failed (exit codes {codes})")
+        raise RuntimeError(f"a measured process failed (exit codes {codes})")
     return [json.loads((out / "result.json").read_text()) for out in outs]
 
 
@@ -181,7 +181,7 @@ def main(argv: list[str] | None = None) -> None:
     wall: dict[int, list[float]] = {1: [], args.processes: []}
     cpu: dict[int, list[float]] = {1: [], args.processes: []}
     with ExitStack() as stack:
-        tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_cores_"))
+        tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="experiments_cores_"))
         if args.beside_server:
             print(f"Prefect's temporary server at {stack.enter_context(_prefect_server())}", flush=True)
         for n, k in enumerate(run_order(args.processes, args.repeats)):

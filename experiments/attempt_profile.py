@@ -1,4 +1,4 @@
-"""Where a synthesis attempt's time goes: ``python -m bench.bench_attempt_profile [--tasks hammer,sweep] [--attempts 30]``.
+"""Where a synthesis attempt's time goes: ``python -m experiments.attempt_profile [--tasks hammer,sweep] [--attempts 30]``.
 
 An attempt as ``envs.synthesis.run_shard`` makes it (inside ``fast_resets()``): the scene seed and a plan drawn
 from the task's prior with ``attempt_seeds(run_seed, task, shard, j)`` for j = 0..attempts-1, then
@@ -32,7 +32,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ""):  # ``python bench/bench_attempt_profile.py``
+if __package__ in (None, ""):  # ``python experiments/attempt_profile.py``
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp/prl-runtime")
