@@ -179,7 +179,7 @@ class PipelineConfig:
     """Render pictures of each executor stage (needs a Vulkan device)."""
     video: bool = True
     """Write two camera videos per episode into the dataset, rendered by replaying each demo (needs a Vulkan
-    device; docs/design.md "Dataset video")."""
+    device; docs/guide/design.md "Dataset video")."""
     video_width: int = VideoSpec.width
     """Width of the dataset's camera pictures, pixels."""
     video_height: int = VideoSpec.height
@@ -305,7 +305,7 @@ PROFILES: dict[str, dict] = {
 }
 """Each profile's settings over ``PipelineConfig``'s defaults; ``ln`` is merged over the default LN settings. The
 paper profile leaves the dataset video out (``--video`` puts it in): it would add about 2 h to the export of its
-8,000 demos on a 2-core machine (docs/speed.md "Dataset export")."""
+8,000 demos on a 2-core machine (docs/archive/speed.md "Dataset export")."""
 
 
 @dataclass(frozen=True)
