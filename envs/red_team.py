@@ -5,7 +5,7 @@ how it succeeded. Per task, the cross-entropy method (``prl.cem``) starts from u
 ``--per-round`` plans, runs each once on a fresh scene (seeds no other part of the project uses), and moves the
 per-dimension categoricals towards the top quarter by score (success first, then the task's measure), with a
 floor of 0.1 x uniform. Then the most often successful distinct plans are run again on ``--check-scenes`` fresh
-scenes each, and every success is listed with the outcome's evidence fields (``EVIDENCE``): what the hand did to
+scenes each, and every success is listed with the outcome's evidence fields (``evidence``, declared by each task's class): what the hand did to
 the nail, how far closing the grasp turned the cap, whether the hand touched the cube. ``--pictures DIR`` renders
 the stages of each task's most successful plan.
 
@@ -40,13 +40,11 @@ from prl.plb import load_plb
 from prl.pointnet import load_pointnet, pointnet_config, save_pointnet, train_pointnet
 from prl.version import code_version
 
-EVIDENCE: dict[str, tuple[str, ...]] = {
-    "hammer": ("nail_descent_cm", "nail_depth_cm", "hand_drive_cm", "loose_drive_cm"),
-    "sweep": ("cubes_in_zone", "zone_cubes_hand_touched", "zone_cubes_loose_pushed", "mean_displacement_cm"),
-    "unscrew": ("cap_turn_deg", "grasp_turn_deg", "cap_angle_deg", "gripped"),
-    "tweeze": ("cube_lift_cm", "hand_touches_cube", "between_tips"),
-}
-"""Outcome fields shown with each success: the measure and how it came about."""
+
+def evidence(task: str) -> tuple[str, ...]:
+    """Outcome fields shown with each success of ``task``: the measure and how it came about (its class's
+    ``evidence``, a variant's inherited from its task)."""
+    return tuple(task_class(task).evidence)
 
 
 def red_team_seed(task: str, stage: str, i: int) -> int:
@@ -66,8 +64,8 @@ class SearchResult:
 
 
 def _rows(task: str, outcomes: list[Any]) -> list[dict[str, Any]]:
-    """The attempts of ``envs.trials`` outcomes as report rows, with their ``EVIDENCE`` fields."""
-    keys = EVIDENCE.get(task, ())
+    """The attempts of ``envs.trials`` outcomes as report rows, with their ``evidence`` fields."""
+    keys = evidence(task)
     return [{"plan": list(o.plan), "seed": o.seed, "success": o.success, "measure": o.measure, "fault": o.fault,
              "error": o.error, "evidence": {k: o.outcome[k] for k in keys if k in o.outcome}} for o in outcomes]
 
@@ -156,13 +154,13 @@ def report(results: list[SearchResult], command: str, rl: list[dict[str, Any]] =
                   "| plan | choices | found | re-run successes | evidence of the successes (mean) |", "|---|---|---|---|---|"]
         for top in res.top:
             ok = [row for row in top["checks"] if row["success"]]
-            keys = EVIDENCE.get(res.task, ())
+            keys = evidence(res.task)
             ev = "; ".join(f"{k} {_fmt(float(np.mean([float(r['evidence'][k]) for r in ok])))}" for k in keys) if ok else "-"
             names = ", ".join(str(c) for c in plb.decode(top["plan"]))
             lines.append(f"| `{top['plan']}` | {names} | {top['found']} | {len(ok)}/{len(top['checks'])} | {ev} |")
         lines.append("")
     for res in rl:
-        keys = EVIDENCE.get(res["task"], ())
+        keys = evidence(res["task"])
         ok = [row for row in res["checks"] if row["success"]]
         lines += [f"## {res['task']}: pure RL (K = 0), {res['timesteps']} timesteps", "",
                   (f"Training success per update: {', '.join(f'{r:.2f}' for r in res['curve'])}. The final plan on "

@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from flows.evaluate_rn import PRIOR_SEED_OFFSET, baseline_outcomes, find_pointnet, rn_outcomes
-from prl.config import check_task_names, known_tasks
+from prl.config import check_task_names
+from prl.task_registry import known_tasks
 from prl.constants import EPISODE_FRAMES, REPO_ROOT
 from prl.ln_reference import (
     plan_result,

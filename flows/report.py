@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import envs.tasks  # noqa: F401  (declares every task: the report names their measures' units)
 from prl.constants import REPO_ROOT
 from prl.ln_summary import SummaryError
 from prl.report import write_report

@@ -17,24 +17,11 @@ from typing import Any, ClassVar, get_origin, get_type_hints
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 from prl.export_schema import VideoSpec
 from prl.proposal import ProposalConfig
+from prl.task_registry import known_tasks
 
 
 class ConfigError(ValueError):
     """A configuration value is invalid; the message names it."""
-
-
-def task_variants(root: Path | None = None) -> tuple[str, ...]:
-    """The task variants ``<task>_<variant>`` (``hammer_mixed``, ...) of the paper's tasks (``TASKS``): each module
-    ``envs/tasks/<task>_<variant>.py`` under ``root`` (the repository), sorted. Read from the file names, so this
-    module stays free of the simulator (the module registers the variant's environment when ``envs.tasks`` loads)."""
-    tasks_dir = Path(REPO_ROOT if root is None else root) / "envs" / "tasks"
-    found = {path.stem for task in TASKS for path in tasks_dir.glob(f"{task}_*.py")}
-    return tuple(sorted(name for name in found if name.isidentifier() and name.partition("_")[2]))
-
-
-def known_tasks(root: Path | None = None) -> tuple[str, ...]:
-    """Every task a run may name: the paper's four (``TASKS``), then their variants (``task_variants``)."""
-    return TASKS + task_variants(root)
 
 
 def check_task_names(tasks: list[str]) -> None:
@@ -164,9 +151,8 @@ class PipelineConfig:
     profile: str = "quick"
     """Named preset: 'quick' (laptop minutes) or 'paper' (the paper's scale)."""
     tasks: tuple[str, ...] = TASKS
-    """Tasks to run (default: the paper's four, ``prl.constants.TASKS``), each simulated in ``envs/tasks``: any of
-    those and of their variants ``<task>_<variant>`` with a module ``envs/tasks/<task>_<variant>.py``
-    (``hammer_mixed``, ...; ``known_tasks``)."""
+    """Tasks to run (default: the paper's four, ``prl.constants.TASKS``): any task of ``envs/tasks`` or declared in
+    this process (``prl.task_registry.known_tasks``: the paper's four, their variants ``hammer_mixed``, ...)."""
     seed: int = 0
     """Run seed; every scene seed derives from it."""
     eval_scenes: int = 8
@@ -324,7 +310,7 @@ class AblationConfig:
     repo_id: str | None = None
     """The dataset's repo id (None: from its meta/info.json, else prl/<directory name>)."""
     tasks: tuple[str, ...] = ("hammer",)
-    """Tasks swept, each with demonstrations in the dataset (the paper's four or their variants, ``known_tasks``)."""
+    """Tasks swept, each with demonstrations in the dataset (``prl.task_registry.known_tasks``)."""
     methods: tuple[str, ...] = PAPER_LN_METHODS
     """LN methods swept (``LN_METHODS``): physics (actor+critic pre-training), bc, joint (joint control, no
     demonstrations); physics_gated only when named."""

@@ -49,7 +49,7 @@ RS_DIMS: tuple[int, ...] = (7, 7, 6, 4, 7, 6)
 TASKS: tuple[str, ...] = ("hammer", "sweep", "unscrew", "tweeze")
 
 #: Physics steps per second of every task scene (PhysX, CPU). 250 Hz with 20 solver position iterations
-#: (``envs/tasks/base.py``) was chosen by the fidelity study of ``bench/bench_physics.py`` (docs/physics.md): it
+#: (``envs/tasks/base.py``) was chosen by the fidelity study of ``bench/bench_physics.py`` (docs/guide/physics.md): it
 #: agrees with a converged reference as often as the former 500 Hz / 25 did, at about half the cost.
 SIM_FREQ = 250
 #: Simulated duration of one plan episode, s. The paper's "1500 frames" is an Isaac Sim count with an

@@ -1,4 +1,4 @@
-"""What a LeRobot v3.0 export of the demonstrations holds (docs/design.md "Export"): names, shapes, files.
+"""What a LeRobot v3.0 export of the demonstrations holds (docs/guide/design.md "Export"): names, shapes, files.
 
 One episode per demonstration (``prl.demo.Demo``), one frame per recorded step, the episode's
 task being the demo's task sentence. The writer is ``prl.export``, the checks on reload
@@ -34,7 +34,7 @@ observation.images.wrist        (H, W, 3)    video  camera on the palm, looking 
 The dataset's fps is the recording rate (``DEFAULT_FPS``, 50): lerobot gives every feature one rate, and
 the state stream keeps all its frames. The cameras take ``VideoSpec.fps`` pictures a second; each is held
 until the next (the latest picture, as lerobot's recorder reads a camera slower than its loop), so the MP4
-files have one frame per dataset frame. See docs/design.md "Dataset video".
+files have one frame per dataset frame. See docs/guide/design.md "Dataset video".
 
 lerobot adds ``timestamp``, ``frame_index``, ``episode_index``, ``index`` and ``task_index``.
 

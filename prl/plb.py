@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from prl.constants import JOINT_NAMES, REPO_ROOT, RS_DIMS, SENSOR_NAMES, TASKS
+from prl.task_registry import base_of, declared
 
 #: Where ``load_plb()`` looks when no path is given.
 DEFAULT_PLB_PATH = REPO_ROOT / "assets" / "plb.yaml"
@@ -259,17 +260,22 @@ class PhysicalLawsBank:
         raise PLBError(f"unknown dimension {name!r}; known: {', '.join(self.dim_names)}")
 
     def task(self, name: str) -> TaskSpec:
-        """The catalogue entry of task ``name``. A variant of a task (``<task>_<variant>``, e.g. ``hammer_mixed``)
-        without an entry of its own reads its task's: same goal, texts and prior (so adding a variant edits no
-        catalogue entry, nor the committed LN results of the tasks, ``prl.version.outcome_files``)."""
+        """The catalogue entry of task ``name``; for a task without one, the entry its class declares
+        (``prl.task_registry.TaskDecl.catalogue_entry``: a task kept outside the repository) or, for a variant
+        (``hammer_mixed``), its task's: same goal, texts and prior (so adding a variant edits no catalogue entry,
+        nor the committed LN results of the tasks, ``prl.version.outcome_files``)."""
         for t in self.tasks:
             if t.name == name:
                 return t
-        base, _, variant = str(name).partition("_")
-        if variant and base != name:
-            for t in self.tasks:
-                if t.name == base:
-                    return t
+        own = declared().get(name)
+        if own is not None and own.catalogue_entry is not None:
+            spec = _parse_task(name, own.catalogue_entry, self.dims)
+            self._check_prior(spec)
+            return spec
+        base = base_of(name)
+        for t in self.tasks:
+            if t.name == base != name:
+                return t
         raise PLBError(f"unknown task {name!r}; known: {', '.join(t.name for t in self.tasks)}")
 
     def prior(self, task: str) -> tuple[np.ndarray, ...]:

@@ -21,6 +21,8 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import trimesh
 
+from prl.task_registry import declaration
+
 # --- nominal hammer and nail geometry: the one definition; envs/tasks/hammer.py builds its scene from it
 HANDLE_RADIUS = 0.016
 """Nominal handle capsule radius (m)."""
@@ -278,24 +280,15 @@ def tweeze_object_mesh(params: Mapping[str, float]) -> trimesh.Trimesh:
 
 MeshBuilder = Callable[[Mapping[str, float]], trimesh.Trimesh]
 
-#: Per task: (tool mesh builder, object mesh builder), each taking the env's ``scene_params``.
-MESH_BUILDERS: dict[str, tuple[MeshBuilder, MeshBuilder]] = {
-    "hammer": (hammer_tool_mesh, hammer_object_mesh),
-    "sweep": (sweep_tool_mesh, sweep_object_mesh),
-    "unscrew": (unscrew_tool_mesh, unscrew_object_mesh),
-    "tweeze": (tweeze_tool_mesh, tweeze_object_mesh),
-}
-
-
 def scene_meshes(task: str, scene_params: Mapping[str, float]) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
-    """``(tool_mesh, object_mesh)`` of one scene of ``task`` from the env's ``scene_params``. A variant of a task
-    (``<task>_<variant>``, e.g. ``hammer_mixed``) without builders of its own uses its task's: its scenes are
-    built from the same parameters (a variant moves or resizes them; the poses are in x_manip)."""
-    base, _, variant = str(task).partition("_")
-    name = task if task in MESH_BUILDERS or not variant else base
-    if name not in MESH_BUILDERS:
-        raise ValueError(f"no mesh builders for task {task!r}; known: {', '.join(sorted(MESH_BUILDERS))}")
-    tool_builder, object_builder = MESH_BUILDERS[name]
+    """``(tool_mesh, object_mesh)`` of one scene of ``task`` from the env's ``scene_params``, built by the mesh
+    builders its environment class declares (``prl.task_registry``; a variant inherits its task's: its scenes are
+    built from the same parameters, a variant moves or resizes them and the poses are in x_manip). ValueError naming
+    a task that declares none; KeyError (``prl.task_registry.declaration``) for one not declared in this process."""
+    meshes = declaration(task).meshes
+    if meshes is None:
+        raise ValueError(f"task {task!r} declares no mesh builders (its class's tool_mesh and object_mesh)")
+    tool_builder, object_builder = meshes
     return tool_builder(scene_params), object_builder(scene_params)
 
 

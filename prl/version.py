@@ -9,8 +9,9 @@ import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
-from prl.constants import REPO_ROOT, TASKS
+from prl.constants import REPO_ROOT
 from prl.plb import DEFAULT_PLB_PATH
+from prl.task_registry import base_of, declared
 
 _SOURCE_DIRS = ("prl", "envs", "assets")
 
@@ -38,6 +39,7 @@ OUTCOME_SHARED_FILES: tuple[str, ...] = (
     # label maths, the demo record)
     "prl/__init__.py", "prl/ln.py", "prl/demo.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py",
     "prl/labels.py", "prl/stages.py", "prl/atomic.py", "prl/shapes.py",  # the tasks build their meshes with it
+    "prl/task_registry.py",
 )
 """Files that decide an LN point's outcome on every task and for every method, beside the task's own module,
 ``assets/`` and the method's own files (``OUTCOME_METHOD_FILES``). Left out on purpose: ``prl/config.py`` (the LN's
@@ -80,15 +82,29 @@ def outcome_files(task: str, method: str = "physics") -> tuple[str, ...]:
     ``OUTCOME_SHARED_FILES``, the method family's ``OUTCOME_METHOD_FILES`` and ``assets/``
     (``OUTCOME_ASSET_SUFFIXES``). An explicit list: a module added later (another task, a variant of one) changes no
     task's files until one of these imports it. FileNotFoundError naming a task without a module."""
-    if not isinstance(task, str) or not task.isidentifier():
-        raise ValueError(f"task must be a task module's name, got {task!r}")
-    own = f"envs/tasks/{task}.py"
-    if not (REPO_ROOT / own).is_file():
-        raise FileNotFoundError(f"task {task!r} has no module {own!r} under {REPO_ROOT}")
+    own = task_module(task)
     assets = [p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "assets").rglob("*")
               if p.is_file() and p.suffix in OUTCOME_ASSET_SUFFIXES]
     family = OUTCOME_METHOD_FILES[method_family(method)]
     return tuple(sorted({*_task_modules(own), *OUTCOME_SHARED_FILES, *family, *assets}))
+
+
+def task_module(task: str) -> str:
+    """The file of ``task``'s module relative to the repository root: ``envs/tasks/<task>.py`` or, for a task kept
+    elsewhere in the repository, its declaration's (``prl.task_registry``). ValueError for a name that is no
+    identifier or a module outside the repository; FileNotFoundError naming a task without a module."""
+    if not isinstance(task, str) or not task.isidentifier():
+        raise ValueError(f"task must be a task module's name, got {task!r}")
+    own = f"envs/tasks/{task}.py"
+    decl = declared().get(task)
+    if (REPO_ROOT / own).is_file() or decl is None:
+        if not (REPO_ROOT / own).is_file():
+            raise FileNotFoundError(f"task {task!r} has no module {own!r} under {REPO_ROOT}")
+        return own
+    if not decl.module_file.is_relative_to(REPO_ROOT):
+        raise ValueError(f"task {task!r}'s module {str(decl.module_file)!r} is outside the repository "
+                         f"{str(REPO_ROOT)!r}: its outcome version would not be reproducible from a checkout")
+    return decl.module_file.relative_to(REPO_ROOT).as_posix()
 
 
 def _task_modules(own: str) -> set[str]:
@@ -162,19 +178,20 @@ _CATALOGUE_SECTION = re.compile(rb"^[A-Za-z0-9_]+:")
 
 
 def catalogue_view(data: bytes, task: str) -> bytes:
-    """The catalogue's bytes as ``task``'s outcome reads them: the whole file less the entries of *variants* other
-    than ``task`` (entries of the ``tasks:`` section whose name is not one of ``prl.constants.TASKS``), each with the
-    blank and comment lines right above its name. ``prl.plb`` gives a task its own entry or, for a variant without
-    one, its base task's, so a variant's entry decides no other task's outcome; the base tasks' entries and
-    everything above ``tasks:`` stay in every view. A file with no variant entry is its own view, byte for byte."""
+    """The catalogue's bytes as ``task``'s outcome reads them: everything above its ``tasks:`` section (dimensions,
+    grasp patterns, motion templates) and, of that section, ``task``'s own entry or, where it has none, the entry it
+    reads instead (``prl.plb``: a variant's task's, ``prl.task_registry.base_of``), each entry with the blank and
+    comment lines right above its name. Another task's entry decides nothing of ``task``'s outcome, so adding a task
+    to the catalogue or editing another's entry leaves ``task``'s version as it was."""
     lines = data.splitlines(keepends=True)
     start = next((i + 1 for i, line in enumerate(lines) if line.rstrip() == b"tasks:"), len(lines))
     stop = next((i for i in range(start, len(lines)) if _CATALOGUE_SECTION.match(lines[i])), len(lines))
     keys = [i for i in range(start, stop) if _CATALOGUE_KEY.match(lines[i])]
+    names = [_CATALOGUE_KEY.match(lines[i]).group(1).decode() for i in keys]
+    keep = task if task in names else base_of(task)
     drop: set[int] = set()
     for n, i in enumerate(keys):
-        name = _CATALOGUE_KEY.match(lines[i]).group(1).decode()
-        if name in TASKS or name == task:
+        if names[n] == keep:
             continue
         first = i
         while first > start and _CATALOGUE_GAP.match(lines[first - 1]) and first - 1 not in drop:

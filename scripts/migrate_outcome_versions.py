@@ -1,17 +1,18 @@
-"""One-time migration of the committed LN summaries to outcome versions per method (``prl.version``).
+"""Re-record the committed LN summaries' outcome versions after a change of the version scheme (``prl.version``),
+checked, so that no point goes stale through a change that decides no outcome.
 
-Before it, a summary's ``code_version`` covered one file list for every method, the joint-control environment and
-the export's schema included, so editing either would have made every point stale. This script:
+A change to how versions are computed (which files a task's version covers, how the catalogue is cut per task) or
+to a shared file that moves code without changing what it computes (the task registry) gives every point a new
+version. This script:
 
-1. checks that each summary in ``docs/results/ln`` was made under the ``--base`` commit's files: its recorded
-   ``code_version`` equals the former scheme's digest (``FORMER_SHARED_FILES``) of that commit's bytes;
+1. asks the ``--base`` commit (checked out in a temporary git worktree, with its own ``prl.version``) which
+   summaries in ``docs/results/ln`` were current there: only those are re-recorded (a point stale at the base
+   stays stale);
 2. re-runs ``--check-episodes`` evaluation episodes of each task (their scene seeds and plans, from the task's
-   plan-space summaries) and requires the recorded success (the outcome the summaries count; the measures are
-   printed beside the recorded ones: PhysX on the CPU repeats itself on one machine, not across machines, and
-   the summaries were made on others);
-3. records ``code_files`` and ``code_version`` of the new scheme: for plan-space points and the reference rows from
-   the working tree (nothing that decides their outcomes changed, which step 2 checks), for joint-space points from
-   the base commit's bytes (what they ran on), so the report names the files that changed since.
+   plan-space summaries) with the working tree's code and requires the recorded success (the outcome the summaries
+   count; the measures are printed beside the recorded ones: PhysX on the CPU repeats itself on one machine, not
+   across machines, and the summaries were made on others);
+3. records ``code_files`` and ``code_version`` of the working tree for each summary current at the base.
 
     python scripts/migrate_outcome_versions.py --base <commit> [--check-episodes 4] [--dry-run]
 """
@@ -19,10 +20,11 @@ the export's schema included, so editing either would have made every point stal
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
+import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,50 +32,35 @@ sys.path.insert(0, str(REPO))
 
 from prl.constants import REPO_ROOT
 from prl.ln_summary import summary_bytes
-from prl.version import (
-    OUTCOME_ASSET_SUFFIXES,
-    PLB_CATALOGUE,
-    _task_modules,
-    catalogue_view,
-    method_family,
-    outcome_file_digests,
-    version_of,
-)
+from prl.version import method_family, outcome_file_digests, version_of
 
-FORMER_SHARED_FILES = (
-    "envs/__init__.py", "envs/agents/__init__.py", "envs/agents/prl_hand.py", "envs/hand_model.py", "envs/ik.py",
-    "envs/sensors.py", "envs/tasks/__init__.py", "envs/tasks/base.py", "envs/executor.py", "envs/execution.py",
-    "envs/episode.py", "envs/scene_record.py", "envs/scene_stream.py", "envs/plan_env.py", "envs/joint_env.py",
-    "envs/vec_env.py", "envs/trials.py", "envs/reach.py",
-    "prl/__init__.py", "prl/ln.py", "prl/features.py", "prl/demo.py", "prl/pointnet.py", "prl/rn.py",
-    "prl/text_embed.py", "prl/shapes.py", "prl/plb.py", "prl/constants.py", "prl/geometry.py", "prl/labels.py",
-    "prl/stages.py", "prl/atomic.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py",
-    "prl/stats.py",
-)
-"""The former scheme's shared file list (every task, every method)."""
+CURRENT_AT = """
+import json, sys
+from pathlib import Path
+from prl.ln_summary import read_summaries, stale_points
+from prl.ln_reference import read_references, reference_file_name
+d = Path(sys.argv[1])
+all_ = {**read_summaries(d), **{reference_file_name(t).removesuffix(".json"): r for t, r in read_references(d).items()}}
+stale = stale_points(all_)
+print(json.dumps(sorted(n for n in all_ if n not in stale)))
+"""
+"""Run in the base commit's worktree: the names of the summaries current there."""
 
 
-def git_bytes(commit: str, rel: str) -> bytes | None:
-    """``rel``'s bytes at ``commit``, None where it did not exist."""
-    res = subprocess.run(["git", "show", f"{commit}:{rel}"], cwd=REPO_ROOT, capture_output=True, check=False)
-    return res.stdout if res.returncode == 0 else None
-
-
-def former_version(task: str, commit: str) -> str:
-    """The former ``outcome_version(task)`` of ``commit``'s files (its task modules as the working tree imports
-    them, its assets as listed in that commit)."""
-    listed = subprocess.run(["git", "ls-tree", "-r", "--name-only", commit, "assets"], cwd=REPO_ROOT,
-                            capture_output=True, text=True, check=True).stdout.split()
-    assets = [rel for rel in listed if Path(rel).suffix in OUTCOME_ASSET_SUFFIXES]
-    files = sorted({*_task_modules(f"envs/tasks/{task}.py"), *FORMER_SHARED_FILES, *assets})
-    h = hashlib.sha256()
-    for rel in files:
-        data = git_bytes(commit, rel)
-        if data is None:
-            raise FileNotFoundError(f"{rel} is not in commit {commit}")
-        h.update(rel.encode())
-        h.update(catalogue_view(data, task) if rel == PLB_CATALOGUE else data)
-    return h.hexdigest()[:16]
+def current_at(commit: str, results_dir: Path) -> set[str]:
+    """The names (file stems) of the summaries of ``results_dir`` whose version is current at ``commit``, as that
+    commit's own ``prl.version`` computes it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "base"
+        subprocess.run(["git", "worktree", "add", "--detach", str(tree), commit], cwd=REPO_ROOT, check=True,
+                       capture_output=True)
+        try:
+            out = subprocess.run([sys.executable, "-c", CURRENT_AT, str(results_dir.resolve())], cwd=tree,
+                                 check=True, capture_output=True, text=True,
+                                 env={**os.environ, "PYTHONPATH": str(tree)}).stdout
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO_ROOT, check=False)
+    return set(json.loads(out.strip().splitlines()[-1]))
 
 
 def check_episodes(summaries: dict[Path, dict], per_task: int) -> None:
@@ -109,27 +96,22 @@ def check_episodes(summaries: dict[Path, dict], per_task: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--base", required=True, help="the commit the summaries were made under")
+    parser.add_argument("--base", required=True, help="the commit whose versions the summaries were current under")
     parser.add_argument("--results-dir", type=Path, default=REPO_ROOT / "docs/results/ln")
     parser.add_argument("--check-episodes", type=int, default=4, help="episodes re-run per task")
     parser.add_argument("--dry-run", action="store_true")
     args = parser.parse_args()
-    paths = sorted(args.results_dir.glob("*.json"))
-    summaries = {p: json.loads(p.read_text()) for p in paths}
-    former: dict[str, str] = {}
+    summaries = {p: json.loads(p.read_text()) for p in sorted(args.results_dir.glob("*.json"))}
+    current = current_at(args.base, args.results_dir)
+    print(f"{len(current)} of {len(summaries)} summaries are current at {args.base}")
+    check_episodes({p: s for p, s in summaries.items() if p.stem in current}, args.check_episodes)
     for path, s in summaries.items():
-        task = s["point"]["task"] if "point" in s else s["task"]
-        former.setdefault(task, former_version(task, args.base))
-        if s["code_version"] != former[task]:
-            raise SystemExit(f"{path.name} records {s['code_version']}, not the {args.base} files' {former[task]}: "
-                             f"it was not made under that commit; nothing migrated")
-    print(f"{len(summaries)} summaries were made under {args.base}")
-    check_episodes(summaries, args.check_episodes)
-    for path, s in summaries.items():
+        if path.stem not in current:
+            print(f"{path.name}: stale at {args.base}, left as it is")
+            continue
         task = s["point"]["task"] if "point" in s else s["task"]
         method = s["point"]["method"] if "point" in s else "reference"
-        read = None if method_family(method) == "plan" else (lambda rel: git_bytes(args.base, rel))
-        files = outcome_file_digests(task, method, read=read)
+        files = outcome_file_digests(task, method)
         s.update(code_files=files, code_version=version_of(files))
         if not args.dry_run:
             path.write_bytes(summary_bytes(s))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gc
 import importlib
 import pkgutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
@@ -14,30 +14,50 @@ import torch
 from mani_skill.utils.registration import REGISTERED_ENVS
 
 from envs.tasks.base import DEFAULT_ENV_KWARGS, PRLTaskEnv, physics_sim_config
-from prl.constants import TASKS
+from prl.task_registry import declare, ordered
 
 
 def _discover_tasks() -> dict[str, str]:
-    """Import every module of this package (each registers its environments) and map the short name of every
-    pipeline task (``PRLTaskEnv.pipeline_task``) to its environment id: the paper's four first, in
-    ``prl.constants.TASKS`` order, then the others by name. A task is added by adding its module, so this file (one
-    of every task's ``prl.version.outcome_files``) does not change."""
-    for module in pkgutil.iter_modules(__path__):
-        importlib.import_module(f"{__name__}.{module.name}")
+    """Map the short name of every pipeline task registered with ManiSkill (a ``PRLTaskEnv`` subclass with a
+    ``task_name`` and ``pipeline_task``) to its environment id, paper tasks first (``prl.task_registry.ordered``),
+    declaring each in ``prl.task_registry`` with its environment id (``PRLTaskEnv.declaration``). Run on every look-up, so a task
+    module imported later (from outside this package) is found too."""
     found: dict[str, str] = {}
-    for env_id, spec in REGISTERED_ENVS.items():
+    for env_id, spec in list(REGISTERED_ENVS.items()):
         cls = spec.cls
         if not (isinstance(cls, type) and issubclass(cls, PRLTaskEnv) and cls.pipeline_task and cls.task_name):
             continue
         if cls.task_name in found:
             raise RuntimeError(f"task {cls.task_name!r} is registered twice: {found[cls.task_name]} and {env_id}")
         found[cls.task_name] = env_id
-    order = [t for t in TASKS if t in found] + sorted(set(found) - set(TASKS))
-    return {t: found[t] for t in order}
+        declare(cls.declaration(env_id))
+    return {t: found[t] for t in ordered(found)}
 
 
-TASK_ENV_IDS: dict[str, str] = _discover_tasks()
-"""Short task name -> registered ManiSkill environment id ("hammer" -> "PRL-Hammer-v1", ...)."""
+class _TaskIds(Mapping[str, str]):
+    """Short task name -> registered ManiSkill environment id ("hammer" -> "PRL-Hammer-v1", ...), looked up anew
+    each time (``_discover_tasks``)."""
+
+    def __getitem__(self, task: str) -> str:
+        return _discover_tasks()[task]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_discover_tasks())
+
+    def __len__(self) -> int:
+        return len(_discover_tasks())
+
+    def __repr__(self) -> str:
+        return repr(_discover_tasks())
+
+
+for _module in pkgutil.iter_modules(__path__):  # each module registers its environments
+    importlib.import_module(f"{__name__}.{_module.name}")
+
+TASK_ENV_IDS: Mapping[str, str] = _TaskIds()
+"""Short task name -> registered ManiSkill environment id ("hammer" -> "PRL-Hammer-v1", ...): the tasks of this
+package and of any task module imported since."""
+_discover_tasks()  # declare this package's tasks now
 
 
 def task_class(task: str) -> type[PRLTaskEnv]:

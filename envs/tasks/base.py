@@ -17,6 +17,9 @@ The plan executor (``envs/executor.py``) relies on the public API below:
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -30,7 +33,9 @@ from sapien import physx
 from envs.reach import REACH_MARGIN, HandReach, moving_bodies
 from prl.constants import SIM_FREQ
 from prl.geometry import rot_z
+from prl.shapes import MeshBuilder
 from prl.stages import StageSpec
+from prl.task_registry import TaskDecl, declare
 
 Box = tuple[np.ndarray, np.ndarray]
 """An axis-aligned box in some frame: (center (3,), half_extents (3,)), metres."""
@@ -117,6 +122,18 @@ class PRLTaskEnv(BaseEnv):
     """Whether the pipeline lists this environment as a task (``envs.tasks.TASK_ENV_IDS``); False for probes."""
     measure_key: str = ""
     """Key of ``evaluate()`` holding the task's measured quantity (the paper's reward)."""
+    measure_unit: ClassVar[str] = ""
+    """Unit of the measure (``"cm"``, ``"degrees"``, ``"cubes"``): the report names it beside the rewards."""
+    tool_mesh: ClassVar[MeshBuilder | None] = None
+    """The tool's mesh in its actor frame from ``scene_params`` (a ``staticmethod``; ``prl.shapes.scene_meshes``
+    samples the PointNet's points on it). A variant inherits its task's."""
+    object_mesh: ClassVar[MeshBuilder | None] = None
+    """The object's mesh in the task's object frame from ``scene_params`` (a ``staticmethod``)."""
+    evidence: ClassVar[tuple[str, ...]] = ()
+    """Keys of ``evaluate()`` the red team shows beside each success: how the measure came about."""
+    catalogue_entry: ClassVar[Mapping[str, Any] | None] = None
+    """The task's PLB entry (``{"texts": [...], "prior": [[...], ...]}``) for a task kept outside the repository's
+    catalogue; None reads ``assets/plb.yaml`` (or, for a variant without an entry, its task's)."""
     expert_plan: tuple[int, ...] = ()
     """A hand-designed plan that should succeed on most randomised scenes (a reference, not a label)."""
     unacted_dims: ClassVar[tuple[str, ...]] = ()
@@ -126,6 +143,26 @@ class PRLTaskEnv(BaseEnv):
     stages: ClassVar[StageSpec]
     """The executor stages this task runs, their time shares, where T_fv meets the object and what follows
     the motion (``prl.stages.StageSpec``): data, so the executor needs no per-task branch."""
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Declare a task class in ``prl.task_registry`` as soon as it is defined (its environment id follows when
+        ``envs.tasks`` looks its registration up), so that importing a task's module is enough."""
+        super().__init_subclass__(**kwargs)
+        if cls.pipeline_task and cls.task_name:
+            declare(cls.declaration(""))
+
+    @classmethod
+    def declaration(cls, env_id: str) -> TaskDecl:
+        """This task class as the registry declares it: its name, module file, base task and the class attributes
+        the pipeline reads. A class is a variant of the ancestor task class whose name its own extends
+        (``hammer_mixed`` of ``hammer``); a subclass with a name of its own (no underscore) is a base task that
+        reuses its parent's scene."""
+        base = next((c.task_name for c in cls.__mro__[1:] if isinstance(c, type) and issubclass(c, PRLTaskEnv)
+                     and c.task_name and cls.task_name.startswith(f"{c.task_name}_")), "")
+        meshes = (cls.tool_mesh, cls.object_mesh) if cls.tool_mesh and cls.object_mesh else None
+        return TaskDecl(name=cls.task_name, env_id=env_id, module_file=Path(inspect.getfile(cls)).resolve(),
+                        base=base, meshes=meshes, evidence=tuple(cls.evidence), measure_unit=cls.measure_unit,
+                        catalogue_entry=cls.catalogue_entry)
+
     tool: Actor
     """The tool: one dynamic rigid actor held by contact and friction only."""
     tool_gv_local: Box

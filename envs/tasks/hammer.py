@@ -24,6 +24,8 @@ from prl.shapes import (
     NAIL_PROTRUSION,
     NAIL_SHANK_RADIUS,
     SIZE_SCALE_RANGE,
+    hammer_object_mesh,
+    hammer_tool_mesh,
 )
 from prl.stages import StageSpec
 
@@ -123,6 +125,10 @@ class PRLHammerEnv(PRLTaskEnv):
 
     task_name = "hammer"
     measure_key = "nail_descent_cm"
+    measure_unit = "cm"
+    tool_mesh = staticmethod(hammer_tool_mesh)
+    object_mesh = staticmethod(hammer_object_mesh)
+    evidence = ("nail_descent_cm", "nail_depth_cm", "hand_drive_cm", "loose_drive_cm")
     expert_plan = (0, 3, 2, 0, 0, 1)
     """No tilt, no twist, anchor 2, medium wrap, wrist swing, nail Z || head Y (the paper's Fig 2 / 7 choices)."""
     stages = StageSpec(

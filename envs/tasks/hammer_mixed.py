@@ -75,7 +75,7 @@ hammer held with its handle along the nail (object Z || T_fv X) and carried alon
 35-45 deg a wrist swing with the hand at anchor 1, ``(0, 3, 1, 0, 0, 1)``, still drove 14 of 30 slanted nails
 (2026-12-03, a demo plan of the variant; at 50-60 deg 1 of 20); at 50-60 deg one gripped at the handle's end,
 ``(0, 3, 5, 0, 0, 1)``, drove 26 of 30 (and 5 of 20 upright: 31/50 on the trial scenes, over issue #26's 0.60 for
-one fixed plan), at 55-65 deg 8 of 20. At 60-70 deg the family's own plan falls to 17 of 20 (docs/tasks.md)."""
+one fixed plan), at 55-65 deg 8 of 20. At 60-70 deg the family's own plan falls to 17 of 20 (docs/guide/tasks.md)."""
 
 
 def tilt_matrix(tilt: float) -> np.ndarray:
@@ -109,7 +109,7 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
     uniformly random plans of ``python -m envs.trials --task hammer_mixed --scenes 200 --kinds uniform``: 17/200
     (6/93 upright, 11/107 slanted), against 44/200 under the base task's d > 0 cm (at 50-60 deg), where a hammer
     that only bumps the nail counted.
-    Further numbers in ``docs/tasks.md``.
+    Further numbers in ``docs/guide/tasks.md``.
 
     The family is ``scene_params["family"]``; x sees it through the nail's pose in the observation phase (x_manip's
     object pose: the nail's frame, tilted by ``nail_tilt`` in family 1), never through the family index. The tool
@@ -119,7 +119,7 @@ class PRLHammerMixedEnv(MixedFamilies, PRLHammerEnv):
     The variant has a PLB entry of its own (``assets/plb.yaml``): under the hammer's prior, which gives the slanted
     family's push (arm_linear_x, object Z || T_fv X) 0.05 x 0.10 and the wrist swing 0.55 x 0.50, the successful
     plans on slanted nails, the RN's target, have a wrist swing as their mode (a few swings drive some slanted
-    nails); its own prior gives the push 0.30 x 0.35 and the swing 0.35 x 0.35 (docs/tasks.md).
+    nails); its own prior gives the push 0.30 x 0.35 and the swing 0.35 x 0.35 (docs/guide/tasks.md).
 
     **Randomizations:**
     - the family: 0 or 1 with probability 1/2 each, the first value drawn from the scene's seeded generator

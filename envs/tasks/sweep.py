@@ -21,6 +21,8 @@ from prl.shapes import (
     BROOM_HEAD_HALF,
     DEBRIS_CUBE_SIZE_RANGE,
     SWEEP_CLEARANCE,
+    sweep_object_mesh,
+    sweep_tool_mesh,
 )
 from prl.stages import StageSpec
 
@@ -101,6 +103,10 @@ class PRLSweepEnv(PRLTaskEnv):
 
     task_name = "sweep"
     measure_key = "cubes_in_zone"
+    measure_unit = "cubes"
+    tool_mesh = staticmethod(sweep_tool_mesh)
+    object_mesh = staticmethod(sweep_object_mesh)
+    evidence = ("cubes_in_zone", "zone_cubes_hand_touched", "zone_cubes_loose_pushed", "mean_displacement_cm")
     expert_plan = (0, 3, 2, 0, 2, 0)
     """No tilt, no twist, anchor 2, medium wrap on the handle, arm linear along X, the object's (table's)
     Z along T_fv's X: the broom stands head-down."""

@@ -20,6 +20,8 @@ from prl.shapes import (
     TWEEZERS_ARM_THICKNESS,
     TWEEZERS_BUTT_LENGTH,
     TWEEZERS_LINK_IN_FRAME,
+    tweeze_object_mesh,
+    tweeze_tool_mesh,
     tweezers_arm_angle,
 )
 from prl.stages import StageSpec
@@ -30,7 +32,7 @@ ARM_LENGTH_RANGE = (0.15, 0.17)
 TIP_GAP_RANGE = (0.040, 0.046)
 """Gap between the tips' inner faces when the spring holds the tweezers open."""
 SPRING_STIFFNESS_RANGE = (1.0, 2.0)
-"""Hinge spring, N m/rad: a drive with stiffness toward the open angle (docs/design.md "Mechanisms as drives"); shut, the tips press
+"""Hinge spring, N m/rad: a drive with stiffness toward the open angle (docs/guide/design.md "Mechanisms as drives"); shut, the tips press
 0.2-0.5 N m back against the fingers, which press with up to 1.5-2 N m per joint (``envs/agents/prl_hand.py``)."""
 SPRING_DAMPING = 1.0
 """Hinge damping, N m s/rad. Undamped, a saturated pinch swung the 10 g arm shut at ~4 rad/s and the tip struck
@@ -127,6 +129,10 @@ class PRLTweezeEnv(PRLTaskEnv):
 
     task_name = "tweeze"
     measure_key = "cube_lift_cm"
+    measure_unit = "cm"
+    tool_mesh = staticmethod(tweeze_tool_mesh)
+    object_mesh = staticmethod(tweeze_object_mesh)
+    evidence = ("cube_lift_cm", "hand_touches_cube", "between_tips")
     expert_plan = (2, 1, 4, 2, 6, 1)
     """Palm tilted by -10 deg and turned by -20 deg (its little-finger side away from the tips: untwisted, it
     brushed the cube on the way up), anchor 4, palmar pinch across the arms, finger squeeze, object Z || T_fv Y:

@@ -18,6 +18,8 @@ from prl.shapes import (  # the cap on a narrow neck, its top 1 mm proud
     CAP_CENTER_HEIGHT,
     CAP_TOP_PROUD,
     NECK_RADIUS,
+    unscrew_object_mesh,
+    unscrew_tool_mesh,
 )
 from prl.stages import StageSpec
 
@@ -60,7 +62,7 @@ class PRLUnscrewEnv(PRLTaskEnv):
     the bottle) whose child link, the cap, turns on a ``revolute_unwrapped`` joint about the bottle's axis. The
     thread is a zero-stiffness velocity drive with a force limit: it holds up to a breakaway torque and then
     lets the cap turn, however hard the hand squeezes (PhysX joint friction would scale with the squeeze,
-    docs/design.md "Mechanisms as drives"). The cap's side is knurled (friction 0.9-1.4); its top is a smooth disc (friction 0.05)
+    docs/guide/design.md "Mechanisms as drives"). The cap's side is knurled (friction 0.9-1.4); its top is a smooth disc (friction 0.05)
     standing 1 mm proud, so a palm that only presses on the top and turns does not open it.
 
     The RS reads here: the tool is the cap (T_gv = the cap's side, where the fingers grip; T_fv = the cap as
@@ -89,6 +91,10 @@ class PRLUnscrewEnv(PRLTaskEnv):
 
     task_name = "unscrew"
     measure_key = "cap_turn_deg"
+    measure_unit = "degrees"
+    tool_mesh = staticmethod(unscrew_tool_mesh)
+    object_mesh = staticmethod(unscrew_object_mesh)
+    evidence = ("cap_turn_deg", "grasp_turn_deg", "cap_angle_deg", "gripped")
     expert_plan = (0, 3, 2, 3, 5, 1)
     """No tilt, no twist, anchor 2, precision disk round the cap, arm rotation about the palm, object Z || T_fv Y."""
     unacted_dims = ("tool_object_rot",)

@@ -68,7 +68,7 @@ WIDE_LID = CapFamily(
 """Family 1: a wide, low, tight, knurled lid (7.2-8.4 cm across, 1.8-2.2 cm tall, 3.8-4.2 N m to break away: a
 stuck jar lid; side friction 1.2-1.5) on the base task's bottle. The precision disk's fingertips slip on it, tilted
 or not; a medium wrap (the palm on the lid, the fingers round its rim) holds that torque, untilted or tilted
-(ranges of 2026-12-05: see ``docs/tasks.md``)."""
+(ranges of 2026-12-05: see ``docs/guide/tasks.md``)."""
 
 
 @register_env("PRL-UnscrewMixed-v1", max_episode_steps=150)
@@ -92,7 +92,7 @@ class PRLUnscrewMixedEnv(MixedFamilies, PRLUnscrewEnv):
 
     Measured: each family's plan on 30 scenes of each family, the trial scenes' oracle and fixed plans
     (``python -m envs.families --task unscrew_mixed --scenes 50``), uniform plans (``--uniform``), and how these
-    ranges were chosen: ``docs/tasks.md``, "Unscrewing, mixed" (numbers there, so that a new measurement does not
+    ranges were chosen: ``docs/guide/tasks.md``, "Unscrewing, mixed" (numbers there, so that a new measurement does not
     change this module and with it the task's code version).
 
     The family is ``scene_params["family"]``; x sees it through the sizes (the cap's radius in the tool's point

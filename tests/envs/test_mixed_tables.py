@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from prl.config import task_variants
+from prl.task_registry import known_tasks
 
-MIXED = tuple(t for t in task_variants() if t.endswith("_mixed"))
+MIXED = tuple(t for t in known_tasks() if t.endswith("_mixed"))
 
 
 def _cls(task: str):

@@ -34,13 +34,13 @@ def test_label_table_marks_unacted_dimensions_and_lists_misses() -> None:
 
 @pytest.mark.sim
 def test_a_tiny_search_reports_its_rounds_and_rechecks_what_it_found() -> None:
-    from envs.red_team import EVIDENCE, report, search
+    from envs.red_team import evidence, report, search
 
     result = search("unscrew", rounds=2, per_round=6, top_k=2, check_scenes=2)
     assert len(result.attempts) == 12 and len(result.round_rates) == 2
     assert all(sum(p) == pytest.approx(1.0) for p in result.final_probs)
     for top in result.top:  # each re-run plan was found successful at least once
         assert top["found"] >= 1 and len(top["checks"]) == 2
-        assert all(set(row["evidence"]) == set(EVIDENCE["unscrew"]) for row in top["checks"])
+        assert all(set(row["evidence"]) == set(evidence("unscrew")) for row in top["checks"])
     text = report([result], "cmd")
     assert text.count("\n| `[") == len(result.top) and "## unscrew" in text

@@ -58,15 +58,15 @@ def test_unknown_profile() -> None:
         make_config("huge")
 
 
-def test_task_variants_with_a_module_are_tasks(tmp_path: Path) -> None:
-    """``<task>_<variant>`` names a task when envs/tasks/<task>_<variant>.py exists (issue #26's mixed variants);
-    read from the file names, without the simulator; any other name is an error naming it and the known tasks."""
+def test_the_tasks_of_envs_tasks_are_known_without_the_simulator(tmp_path: Path) -> None:
+    """A task is a class of an ``envs/tasks`` module that sets ``task_name`` (``prl.task_registry.repo_task_names``,
+    read as text, without the simulator); any other name is an error naming it and the known tasks."""
     import subprocess
     import sys
 
-    from prl.config import known_tasks, task_variants
+    from prl.task_registry import known_tasks, repo_task_names
 
-    assert "unscrew_mixed" in task_variants() and known_tasks()[:4] == ("hammer", "sweep", "unscrew", "tweeze")
+    assert "unscrew_mixed" in known_tasks() and known_tasks()[:4] == ("hammer", "sweep", "unscrew", "tweeze")
     assert make_config(tasks=["unscrew_mixed", "hammer"]).tasks == ("unscrew_mixed", "hammer")
     assert make_config().tasks == ("hammer", "sweep", "unscrew", "tweeze")  # the default stays the paper's four
     assert make_ablation_config("data", "pn.pt", tasks=["unscrew_mixed"]).tasks == ("unscrew_mixed",)
@@ -75,14 +75,12 @@ def test_task_variants_with_a_module_are_tasks(tmp_path: Path) -> None:
         make_config(tasks=["unscrew", "unscrew_twisted"])
     with pytest.raises(ConfigError, match="unknown task 'mixed' in tasks"):
         make_ablation_config("data", "pn.pt", tasks=["mixed"])
-    # a variant is a module of a paper task's name: another module of envs/tasks is not a task
-    tasks_dir = tmp_path / "envs" / "tasks"
-    tasks_dir.mkdir(parents=True)
-    for name in ("hammer.py", "hammer_mixed.py", "sweep_wide.py", "base.py", "grasp_probe.py", "tweeze_.py",
-                 "hammer_mixed.txt"):
-        (tasks_dir / name).write_text("")
-    assert task_variants(tmp_path) == ("hammer_mixed", "sweep_wide")
-    assert known_tasks(tmp_path) == ("hammer", "sweep", "unscrew", "tweeze", "hammer_mixed", "sweep_wide")
+    # a task is a class that names itself, whatever its file is called; a probe (pipeline_task = False) is none
+    (tmp_path / "a.py").write_text('class A(PRLTaskEnv):\n    task_name = "push"\n')
+    (tmp_path / "b.py").write_text('class B(A):\n    task_name = "push_far"\n\nclass C:\n    other = "x"\n')
+    (tmp_path / "probe.py").write_text('class P:\n    task_name = "probe"\n    pipeline_task = False\n')
+    (tmp_path / "hammer.py").write_text('class H:\n    task_name = "hammer"\n')
+    assert repo_task_names(tmp_path) == ("hammer", "push", "push_far")
     # checking a config's tasks loads no simulator
     code = ("import sys; from prl.config import make_config; make_config(tasks=['unscrew_mixed']); "
             "print(sorted(m for m in ('sapien', 'mani_skill', 'torch', 'envs') if m in sys.modules))")

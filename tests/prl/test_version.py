@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from prl import version
-from prl.config import known_tasks
+from prl.task_registry import known_tasks
 from prl.constants import REPO_ROOT, TASKS
 from prl.version import (
     OUTCOME_METHOD_FILES,
@@ -158,27 +158,36 @@ VARIANT = b"""
 """
 
 
-def test_a_variants_catalogue_entry_changes_its_own_version_only(tree: Path) -> None:
-    """``prl.plb`` gives a variant its own entry when the catalogue has one, else its base task's: a variant's entry
-    decides no other task's outcome, and a catalogue without variant entries enters every version whole."""
+def test_a_catalogue_entry_changes_its_own_tasks_version_only(tree: Path) -> None:
+    """``prl.plb`` gives a task its own entry, a variant without one its base task's: a task's version covers the
+    catalogue above ``tasks:`` and the one entry it reads, so adding a task's entry or editing another's changes no
+    other task's version."""
     (tree / "envs/tasks/hammer_mixed.py").write_text("from envs.tasks.hammer import PRLHammerEnv\n")
     (tree / "assets/plb.yaml").write_bytes(CATALOGUE)
+    head, hammer, sweep = CATALOGUE[:CATALOGUE.index(b"  hammer:")], b"  hammer:\n    prior: [0.5, 0.5]\n", (
+        b"\n  sweep:\n    prior: [0.9, 0.1]\n")
+    assert version.catalogue_view(CATALOGUE, "hammer") == head + hammer
+    assert version.catalogue_view(CATALOGUE, "sweep") == head + sweep  # its blank line above is its own
+    assert version.catalogue_view(CATALOGUE, "hammer_mixed") == head + hammer  # a variant without an entry
     before = {**versions(), "hammer_mixed": outcome_version("hammer_mixed")}
-    assert version.catalogue_view(CATALOGUE, "hammer") == CATALOGUE
     (tree / "assets/plb.yaml").write_bytes(CATALOGUE + VARIANT)
-    assert version.catalogue_view(CATALOGUE + VARIANT, "sweep") == CATALOGUE
-    assert version.catalogue_view(CATALOGUE + VARIANT, "hammer_mixed") == CATALOGUE + VARIANT
+    assert version.catalogue_view(CATALOGUE + VARIANT, "sweep") == head + sweep
+    assert version.catalogue_view(CATALOGUE + VARIANT, "hammer_mixed") == head + VARIANT
     after = {**versions(), "hammer_mixed": outcome_version("hammer_mixed")}
     assert after["hammer_mixed"] != before["hammer_mixed"]
     assert {t: v for t, v in after.items() if t != "hammer_mixed"} == {
         t: v for t, v in before.items() if t != "hammer_mixed"}
-    # an entry between two others, and a base task's entry, are cut and kept by the same rule
+    # an entry between two others is cut by the same rule; another section after tasks: stays in every view
     middle = CATALOGUE.replace(b"\n  sweep:", VARIANT + b"\n  sweep:")
-    assert version.catalogue_view(middle, "unscrew_mixed") == CATALOGUE
+    assert version.catalogue_view(middle, "sweep") == head + sweep
     after_tasks = b"\nnotes:\n  hammer_mixed: a key of another section, not an entry\n"
-    assert version.catalogue_view(CATALOGUE + VARIANT + after_tasks, "sweep") == CATALOGUE + after_tasks
+    assert version.catalogue_view(CATALOGUE + VARIANT + after_tasks, "sweep") == head + sweep + after_tasks
+    # editing the sweep's entry changes the sweep's version alone; editing above tasks: changes every one
     (tree / "assets/plb.yaml").write_bytes(CATALOGUE.replace(b"0.9, 0.1", b"0.8, 0.2") + VARIANT)
-    assert all(outcome_version(t) != after[t] for t in ("hammer", "sweep", "hammer_mixed"))
+    edited = {**versions(), "hammer_mixed": outcome_version("hammer_mixed")}
+    assert [t for t in edited if edited[t] != after[t]] == ["sweep"]
+    (tree / "assets/plb.yaml").write_bytes(CATALOGUE.replace(b"kinematic_motion", b"motion") + VARIANT)
+    assert all(outcome_version(t) != edited[t] for t in ("hammer", "sweep", "hammer_mixed"))
 
 
 def _module_file(name: str) -> str | None:
