@@ -145,9 +145,10 @@ class PRLTaskEnv(BaseEnv):
     the motion (``prl.stages.StageSpec``): data, so the executor needs no per-task branch."""
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """Declare a task class in ``prl.task_registry`` as soon as it is defined (its environment id follows when
-        ``envs.tasks`` looks its registration up), so that importing a task's module is enough."""
+        ``envs.tasks`` looks its registration up), so that importing a task's module is enough. Only a class that
+        names itself (``task_name`` in its own body) is a task: a subclass that keeps its parent's name is not."""
         super().__init_subclass__(**kwargs)
-        if cls.pipeline_task and cls.task_name:
+        if cls.pipeline_task and cls.__dict__.get("task_name"):
             declare(cls.declaration(""))
 
     @classmethod
