@@ -1,0 +1,318 @@
+"""The search every mixed variant must survive: does one fixed plan do the variant's job?
+
+A mixed variant (``envs/tasks/<task>_mixed.py``) draws each scene from families that need different plans, so that
+a learner must read the scene. Checking that against the families' own experts is not enough: a plan nobody wrote
+may open both families. Per variant, this searches fixed plans with the cross-entropy method (``prl.cem``) twice,
+from the variant's PLB prior mixed half and half with the uniform distribution and from the uniform one: each
+round draws ``per_round`` plans and runs each on ``scenes_per_plan`` fresh scenes, scores a plan by its success
+rate (then its mean measure) and moves the categoricals towards the top quarter, with a floor at 0.1 of the start.
+Then the ``top`` best plans of each search, and every family's expert, run on a fixed set of ``check_scenes``
+scenes no search saw, as many of each family (``balanced_check_seeds``: the first seeds of a fixed sequence whose
+scene is of a family not yet full, each scene's family read after its reset as a reference may, never by a plan;
+the same set on every run, recorded in the JSON). The variant draws its families with equal probability, so a
+balanced set measures a plan's rate on the variant without the noise of the families' mix in 50 draws.
+
+The variant holds when the best fixed plan on the check scenes succeeds on at most ``BEST_FIXED_TARGET`` of them,
+each family's expert on at least ``FAMILY_TARGET`` of its own family's, and the family oracle (each scene's own
+family's expert) on at least ``FAMILY_TARGET`` of all.
+
+    python -m envs.variant_search --tasks hammer_mixed,sweep_mixed,unscrew_mixed,tweeze_mixed \\
+        --json docs/variant_search.json --out docs/variant_search.md
+
+writes the record and the page; ``--from-json`` makes the page again from the committed record alone. A task is
+searched and recorded as it finishes, and a task already in ``--json`` with the same settings is kept, so an
+interrupted run resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prl import cem
+from prl.atomic import write_atomic
+from prl.plb import load_plb
+from prl.stats import wilson_interval
+
+BEST_FIXED_TARGET = 0.6
+"""A variant holds when no fixed plan succeeds on more than this share of its check scenes."""
+FAMILY_TARGET = 0.9
+"""... while each family's expert succeeds on at least this share of its family's scenes, and the oracle of all."""
+CHECK_DESIGN = "balanced"
+"""How the check scenes are chosen (``balanced_check_seeds``): a record made otherwise has its checks run again."""
+STARTS: tuple[str, ...] = ("prior+uniform", "uniform")
+"""Where a search starts: the variant's prior mixed half and half with uniform, or uniform."""
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """How hard one variant is searched."""
+
+    rounds: int = 4
+    """CEM rounds per start."""
+    per_round: int = 20
+    """Plans drawn per round."""
+    scenes_per_plan: int = 3
+    """Fresh scenes each drawn plan runs on."""
+    top: int = 5
+    """Best distinct plans of each search re-run on the check scenes."""
+    check_scenes: int = 50
+    """The fixed unseen scenes the best plans, the family experts and the oracle are measured on."""
+    seed: int = 0
+    """Seed of the searches' plan draws (the scenes' seeds are hashes, ``search_seed``)."""
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "per_round", "scenes_per_plan", "top", "check_scenes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+def search_seed(task: str, stage: str, i: int) -> int:
+    """A scene seed of this search (a hash: it meets the trial, evaluation, red-team and LN seeds only by chance)."""
+    return zlib.crc32(f"variant-search/{task}/{stage}/{i}".encode())
+
+
+def check_seeds(task: str, n: int) -> list[int]:
+    """The first ``n`` seeds of ``task``'s fixed sequence of check scenes."""
+    return [search_seed(task, "check", i) for i in range(n)]
+
+
+def balanced_check_seeds(task: str, n: int, n_families: int, family_of: Callable[[list[int]], list[int]],
+                         limit: int = 20) -> list[int]:
+    """The first seeds of ``check_seeds``' sequence that fill ``n // n_families`` scenes of each family (``n``
+    rounded down to a multiple of ``n_families``), in sequence order; ``family_of(seeds)`` reads each scene's
+    family. ValueError when ``limit * n`` seeds do not fill every family."""
+    per, seeds, counts = n // n_families, [], [0] * n_families
+    candidates = check_seeds(task, limit * n)
+    for start in range(0, len(candidates), n):
+        block = candidates[start:start + n]
+        for seed, family in zip(block, family_of(block), strict=True):
+            if 0 <= family < n_families and counts[family] < per:
+                counts[family] += 1
+                seeds.append(seed)
+        if min(counts) == per:
+            return seeds
+    raise ValueError(f"{task}: {limit * n} check seeds gave families {counts}, not {per} of each")
+
+
+def start_probs(prior: Sequence[np.ndarray], start: str) -> list[np.ndarray]:
+    """The categoricals a search starts from (``STARTS``); ValueError naming an unknown start."""
+    flat = cem.uniform([len(p) for p in prior])
+    if start == "uniform":
+        return flat
+    if start == "prior+uniform":
+        return [0.5 * np.asarray(p, float) / np.sum(p) + 0.5 * u for p, u in zip(prior, flat, strict=True)]
+    raise ValueError(f"unknown search start {start!r}; known: {', '.join(STARTS)}")
+
+
+Runner = Callable[[str, list[list[int]], list[int]], list[Any]]
+"""``run(task, plans, seeds)`` -> one outcome (``success``, ``measure``) per plan and scene: ``envs.trials.run_trials``."""
+
+
+def cem_search(task: str, start: str, prior: Sequence[np.ndarray], settings: SearchSettings,
+               run: Runner) -> dict[str, Any]:
+    """One cross-entropy search of fixed plans on ``task`` from ``start`` (module docstring): each round's success
+    rate, and every plan tried with its successes and scenes, pooled over the rounds."""
+    reference = start_probs(prior, start)
+    probs = reference
+    rng = np.random.default_rng(zlib.crc32(f"variant-search/{task}/{settings.seed}/{start}".encode()))
+    tried: dict[tuple[int, ...], list[int]] = {}
+    rates = []
+    n = settings.scenes_per_plan
+    for r in range(settings.rounds):
+        plans = cem.sample(probs, settings.per_round, rng)
+        seeds = [search_seed(task, f"{start}/s{settings.seed}/r{r}", i) for i in range(len(plans) * n)]
+        outcomes = run(task, [list(map(int, plan)) for plan in plans for _ in range(n)], seeds)
+        scores = []
+        for k, plan in enumerate(plans):
+            mine = outcomes[k * n:(k + 1) * n]
+            wins = sum(bool(o.success) for o in mine)
+            row = tried.setdefault(tuple(int(v) for v in plan), [0, 0])
+            row[0] += wins
+            row[1] += n
+            scores.append(1000.0 * wins / n + float(np.mean([o.measure for o in mine])))
+        rates.append(float(np.mean([bool(o.success) for o in outcomes])))
+        probs = cem.update(probs, cem.elites(plans, np.array(scores), 0.25), smoothing=0.7, reference=reference,
+                           floor=0.1)
+        print(f"{task} from {start}, round {r}: {sum(bool(o.success) for o in outcomes)}/{len(outcomes)}", flush=True)
+    return {"start": start, "round_rates": rates,
+            "tried": [{"plan": list(p), "successes": k, "scenes": m} for p, (k, m) in tried.items()]}
+
+
+def best_tried(search: dict[str, Any], top: int) -> list[tuple[int, ...]]:
+    """The ``top`` best distinct plans a search tried: by success rate, then by scenes tried (more evidence)."""
+    ranked = sorted(search["tried"], key=lambda t: (-t["successes"] / t["scenes"], -t["scenes"]))
+    return [tuple(t["plan"]) for t in ranked[:top] if t["successes"] > 0]
+
+
+def check(task: str, plans: Sequence[tuple[int, ...]], seeds: Sequence[int],
+          run_with_family: Callable[[str, tuple[int, ...], Sequence[int]], tuple[list[Any], list[int]]]
+          ) -> tuple[dict[tuple[int, ...], list[bool]], list[int]]:
+    """Each of ``plans`` on every check scene: ``{plan: successes per scene}``, and each scene's family."""
+    out: dict[tuple[int, ...], list[bool]] = {}
+    families: list[int] = []
+    for plan in dict.fromkeys(plans):
+        outcomes, fams = run_with_family(task, plan, seeds)
+        out[plan] = [bool(o.success) for o in outcomes]
+        families = families or fams
+    return out, families
+
+
+def verdict(record: dict[str, Any]) -> dict[str, Any]:
+    """The targets read from one variant's record: the best fixed plan's rate, each family expert's rate on its own
+    family, the oracle's rate, and whether the variant holds."""
+    fams = record["families"]
+    n = len(fams)
+    rates = {tuple(c["plan"]): sum(c["successes"]) / n for c in record["checked"]}
+    best_plan, best = max(rates.items(), key=lambda kv: kv[1])
+    experts = {int(k): tuple(p) for k, p in record["family_experts"].items()}
+    own = {}
+    for k, plan in experts.items():
+        wins = [s for s, f in zip(_successes(record, plan), fams, strict=True) if f == k]
+        own[k] = (sum(wins), len(wins))
+    oracle = [_successes(record, experts[f])[i] if f in experts else False for i, f in enumerate(fams)]
+    holds = (best <= BEST_FIXED_TARGET and all(n_f and k / n_f >= FAMILY_TARGET for k, n_f in own.values())
+             and sum(oracle) / n >= FAMILY_TARGET)
+    return {"best_plan": list(best_plan), "best": best, "best_n": n, "own": own, "oracle": sum(oracle), "holds": holds}
+
+
+def _successes(record: dict[str, Any], plan: tuple[int, ...]) -> list[bool]:
+    return next(c["successes"] for c in record["checked"] if tuple(c["plan"]) == tuple(plan))
+
+
+def search_variant(task: str, settings: SearchSettings, run: Runner, run_with_family: Any,
+                   family_experts: dict[int, tuple[int, ...]], family_of: Callable[[list[int]], list[int]],
+                   prior: Sequence[np.ndarray] | None = None,
+                   searches: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Both searches on ``task`` (from ``prior``, by default the task's PLB prior; ``searches`` reuses finished
+    ones), then the best plans and the family experts on the balanced check scenes: the record."""
+    prior = load_plb().prior(task) if prior is None else prior
+    searches = searches or [cem_search(task, start, prior, settings, run) for start in STARTS]
+    found = [plan for s in searches for plan in best_tried(s, settings.top)]
+    seeds = balanced_check_seeds(task, settings.check_scenes, len(family_experts), family_of)
+    checked, families = check(task, [*family_experts.values(), *found], seeds, run_with_family)
+    return {"task": task, "settings": dataclasses.asdict(settings), "check": CHECK_DESIGN, "searches": searches,
+            "check_seeds": seeds,
+            "families": families, "family_experts": {str(k): list(p) for k, p in family_experts.items()},
+            "checked": [{"plan": list(p), "found": p in found, "successes": s} for p, s in checked.items()]}
+
+
+def render(records: Sequence[dict[str, Any]], command: str) -> str:
+    """The page: per variant the targets, then every checked plan's rate overall and per family."""
+    plb = load_plb()
+    lines = [f"<!-- Generated by `{command}` from docs/variant_search.json; do not edit by hand. -->",
+             "# Mixed variants under search", "",
+             ("Does one fixed plan do a mixed variant's job? Two cross-entropy searches over fixed plans per variant "
+              "(from its prior mixed half and half with uniform, and from uniform; `envs/variant_search.py`), then "
+              "the best plans they found and each family's expert on a fixed set of check scenes no search saw. A "
+              f"variant holds when the best fixed plan succeeds on at most {BEST_FIXED_TARGET:.0%} of them, each "
+              f"family's expert on at least {FAMILY_TARGET:.0%} of its own family's and the family oracle on at "
+              f"least {FAMILY_TARGET:.0%} of all."), "",
+             ("| variant | best fixed plan (check scenes, 95% CI) | family experts on their own family | oracle | "
+              "holds |"), "|---|---|---|---|---|"]
+    for rec in records:
+        v, n = verdict(rec), len(rec["families"])
+        lo, hi = wilson_interval(round(v["best"] * n), n)
+        own = ", ".join(f"family {k}: {s}/{m}" for k, (s, m) in sorted(v["own"].items()))
+        lines.append(f"| {rec['task']} | `{v['best_plan']}`: {round(v['best'] * n)}/{n} = {v['best']:.2f} "
+                     f"({lo:.2f}-{hi:.2f}) | {own} | {v['oracle']}/{n} | {'yes' if v['holds'] else '**no**'} |")
+    for rec in records:
+        fams = rec["families"]
+        s = rec["settings"]
+        lines += ["", f"## {rec['task']}", "",
+                  (f"{s['rounds']} rounds of {s['per_round']} plans x {s['scenes_per_plan']} scenes per start; "
+                   + "; ".join(f"from {x['start']}: round success "
+                               + ", ".join(f"{r:.2f}" for r in x["round_rates"]) for x in rec["searches"])
+                   + f". Check scenes: {len(fams)} ("
+                   + ", ".join(f"family {f}: {fams.count(f)}" for f in sorted(set(fams))) + ")."), "",
+                  "| plan | choices | from | check scenes | per family |", "|---|---|---|---|---|"]
+        experts = {tuple(p): k for k, p in rec["family_experts"].items()}
+        for c in sorted(rec["checked"], key=lambda c: -sum(c["successes"])):
+            plan = tuple(c["plan"])
+            who = f"family {experts[plan]} expert" if plan in experts else "search"
+            per = ", ".join(f"{sum(w for w, g in zip(c['successes'], fams, strict=True) if g == f)}/{fams.count(f)}"
+                            for f in sorted(set(fams)))
+            names = ", ".join(str(x) for x in plb.decode(list(plan)))
+            lines.append(f"| `{list(plan)}` | {names} | {who} | {sum(c['successes'])}/{len(fams)} | {per} |")
+    return "\n".join(lines) + "\n"
+
+
+def _run_with_family(task: str, plan: tuple[int, ...], seeds: Sequence[int]) -> tuple[list[Any], list[int]]:
+    """``plan`` on ``seeds``' scenes, and each scene's family read after its reset (-1 where the reset raised)."""
+    from envs.trials import run_policy  # heavy: loads the simulator
+
+    family: dict[int, int] = {}
+
+    def policy(i: int, env: Any, x_manip: Any) -> tuple[int, ...]:
+        family[i] = int(env.scene_params["family"])
+        return plan
+
+    outcomes = run_policy(task, policy, list(seeds), progress=False)
+    return outcomes, [family.get(i, -1) for i in range(len(seeds))]
+
+
+def _families_of(task: str, seeds: list[int]) -> list[int]:
+    """Each scene's family, read after its reset (as a reference may); -1 where the reset raised."""
+    from envs.tasks import fast_resets, make_env  # heavy: loads the simulator
+
+    env, out = make_env(task), []
+    try:
+        with fast_resets():
+            for seed in seeds:
+                try:
+                    env.reset(seed=int(seed))
+                    out.append(int(env.unwrapped.scene_params["family"]))
+                except Exception:  # noqa: BLE001 - a scene that cannot be built is of no family
+                    out.append(-1)
+    finally:
+        env.close()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    from envs.families import family_plans  # heavy: loads the simulator
+    from envs.trials import run_trials
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", default="hammer_mixed,sweep_mixed,unscrew_mixed,tweeze_mixed")
+    parser.add_argument("--json", type=Path, default=Path("docs/variant_search.json"), help="the record (resumed)")
+    parser.add_argument("--out", type=Path, default=Path("docs/variant_search.md"), help="the page")
+    parser.add_argument("--from-json", action="store_true", help="only make the page from the record")
+    for f in dataclasses.fields(SearchSettings):
+        parser.add_argument(f"--{f.name.replace('_', '-')}", type=int, default=f.default)
+    args = parser.parse_args(argv)
+    command = "python -m envs.variant_search --from-json"
+    records = json.loads(args.json.read_text()) if args.json.is_file() else []
+    if not args.from_json:
+        settings = SearchSettings(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SearchSettings)})
+        for task in [t.strip() for t in args.tasks.split(",") if t.strip()]:
+            experts = family_plans(task)
+            if experts is None:
+                parser.error(f"task {task!r} has no scene families (family_expert_plans): not a mixed variant")
+            same = [r for r in records if r["task"] == task and r["settings"] == dataclasses.asdict(settings)]
+            if same and same[0].get("check") == CHECK_DESIGN:
+                continue
+            rec = search_variant(task, settings, partial(run_trials, progress=False), _run_with_family, experts,
+                                 partial(_families_of, task), searches=same[0]["searches"] if same else None)
+            records = [r for r in records if r["task"] != task] + [rec]
+            write_atomic(args.json, json.dumps(records, indent=1) + "\n")
+    if not records:
+        parser.error(f"no record at {args.json}: run the search first")
+    write_atomic(args.out, render(records, command))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
