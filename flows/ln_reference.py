@@ -22,7 +22,6 @@ from typing import Any
 
 from flows.evaluate_rn import PRIOR_SEED_OFFSET, baseline_outcomes, find_pointnet, rn_outcomes
 from prl.config import check_task_names
-from prl.task_registry import known_tasks
 from prl.constants import EPISODE_FRAMES, REPO_ROOT
 from prl.ln_reference import (
     plan_result,
@@ -32,6 +31,7 @@ from prl.ln_reference import (
     reference_reuse,
     write_reference,
 )
+from prl.task_registry import known_tasks
 from prl.version import file_digest, outcome_file_digests, version_of
 
 REFERENCE_PROCEDURE = 1

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from prl import version
-from prl.task_registry import known_tasks
 from prl.constants import REPO_ROOT, TASKS
+from prl.task_registry import known_tasks
 from prl.version import (
     OUTCOME_METHOD_FILES,
     OUTCOME_SHARED_FILES,
