@@ -1,6 +1,6 @@
 """PRL-TweezeMixed-v1 (issue #26): each scene's family is drawn from its seed, each family needs its own plan (its
-expert lifts the cube on its scenes, the other family's does not), x tells the families apart, the base task's
-honesty rules hold, and a bad family table is an error naming the bad value."""
+expert lifts the object on its scenes, the other family's does not, nor do the plans that once solved both), x tells
+the families apart, the base task's honesty rules hold, and a bad family table is an error naming the bad value."""
 
 from __future__ import annotations
 
@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 TWEEZE_SEEDS = {0: 0, 1: 1}
-"""A scene of each tweeze_mixed family (seed 0: the base task's tweezers, seed 1: long tweezers with a deep cube;
-checked below)."""
+"""A scene of each tweeze_mixed family (seed 0: the base task's tweezers and cube, seed 1: long tweezers with a tall
+block standing deep between the arms; checked below)."""
+
+OLD_WINNERS = ((0, 2, 4, 3, 1, 1), (3, 0, 4, 2, 6, 1))
+"""The best fixed plans of the search on the variant before the tall block (46/50 and 32/50 of its check scenes):
+the untilted precision disk and the palmar pinch at anchor 4, the hand's little-finger side over the deep object."""
+TALL_SEED = 5
+"""A family 1 scene on which both ``OLD_WINNERS`` touch the tall block (on seed 1 the disk clears it, as on 7 of the
+25 family 1 check scenes)."""
 
 
 @pytest.fixture(scope="module")
@@ -37,13 +44,15 @@ def test_a_malformed_tweeze_family_is_named() -> None:
         TweezeFamily("odd", cube_along=(-0.05, -0.06))
     with pytest.raises(ValueError, match=r"tweeze family 'odd': tip_gap must be a range .* got \(0.04,\)"):
         TweezeFamily("odd", tip_gap=(0.04,))
+    with pytest.raises(ValueError, match=r"tweeze family 'odd': height_ratio must be a range .* got \(0.0, 2.0\)"):
+        TweezeFamily("odd", height_ratio=(0.0, 2.0))
     TweezeFamily("deep", cube_along=(-0.07, -0.06))  # negative positions along the arms are fine
 
 
 # ------------------------------------------------------------------ physics
 @pytest.mark.sim
 def test_the_family_is_drawn_from_the_seed(env) -> None:
-    from envs.tasks.tweeze_mixed import LONG_DEEP, TIPS
+    from envs.tasks.tweeze_mixed import TALL_DEEP, TIPS
 
     seen = {}
     for seed in range(8):
@@ -57,18 +66,20 @@ def test_the_family_is_drawn_from_the_seed(env) -> None:
         env.reset(seed=seed)
         assert env.scene_params == seen[seed][1]
     for family, params in seen.values():  # each family's values lie in its own ranges
-        spec = (TIPS, LONG_DEEP)[family]
+        spec = (TIPS, TALL_DEEP)[family]
         for key in ("arm_length", "tip_gap", "cube_size", "cube_along"):
             low, high = getattr(spec, key)
             assert low <= params[key] <= high, (family, key, params[key])
+        low, high = spec.height_ratio
+        assert low - 1e-9 <= params["cube_height"] / params["cube_size"] <= high + 1e-9, (family, params)
 
 
 @pytest.mark.sim
 def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
-    """On a scene of each family its expert lifts the cube with the tips (no hand link ever touching it) and the
-    other family's expert does not (measured on 30 scenes of each family: own expert 30/30 and 30/30; the family 1
-    expert 0/30 on family 0; the family 0 expert touches the deep cube on most family 1 scenes). Nothing is
-    written to a pose while the plan runs."""
+    """On a scene of each family its expert lifts the object with the tips (no hand link ever touching it) and the
+    other family's expert does not (measured on the search's 50 balanced check scenes: own expert 25/25 and 24/25,
+    crossed 0/25 and 0/25: on family 0 the hand at anchor 5 squeezes too near the hinge, on family 1 the pinch at
+    anchor 4 touches the tall block). Nothing is written to a pose while the plan runs."""
     from honesty import no_state_writes
 
     plans = _cls().family_expert_plans
@@ -85,11 +96,30 @@ def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
 
 
 @pytest.mark.sim
+def test_the_plans_that_solved_both_families_touch_the_tall_block(env, executor) -> None:
+    """The best fixed plans of the variant before its family 1 held a tall block (``OLD_WINNERS``) still lift family
+    0's cube by the tips, but on family 1's scene a hand link presses on the tall block (not a success). Measured
+    on the search's 50 balanced check scenes (``python -m envs.variant_search --tasks tweeze_mixed``): the untilted
+    disk 21/25 and 7/25, the best fixed plan at 28/50; the anchor-4 pinch 1/16 on family 1 (``python -m
+    envs.family_probe --task tweeze_mixed --family 1 --plans 3,0,4,2,6,1 --scenes 16 --first-seed 41000``)."""
+    for plan in OLD_WINNERS:
+        executor.observe(seed=TWEEZE_SEEDS[0])
+        assert env.scene_params["family"] == 0
+        tips = executor.run(plan)
+        assert tips.success and not tips.outcome["hand_touches_cube"], (plan, tips.outcome)
+        executor.observe(seed=TALL_SEED)
+        assert env.scene_params["family"] == 1
+        tall = executor.run(plan)
+        assert not tall.success and tall.outcome["hand_touches_cube"], (plan, tall.outcome)
+
+
+@pytest.mark.sim
 def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
-    """The meshes rebuilt from scene_params (the base task's builders) differ in size between the families (the
-    tweezers' length in the tool cloud, the cube's edge in the object's), as do their PointNet features; and
-    x_manip's recorded poses place the cube much deeper between the arms in family 1 (the family index is in no
-    part of x)."""
+    """The meshes rebuilt from scene_params (the class's builders: the base task's tweezers, the variant's block)
+    differ between the families (the tweezers' length in the tool cloud; the object's edge and, above all, its
+    height in the object's: a cube, or a block twice as tall as wide), as do their PointNet features; and x_manip's
+    recorded poses place the object much deeper between the arms in family 1 (the family index is in no part of
+    x)."""
     import prl.shapes as S
     from prl.demo import X_MANIP_LAYOUT, X_MANIP_SAMPLES
     from prl.features import point_features
@@ -101,11 +131,12 @@ def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
         params[family] = dict(env.scene_params)
     extents = {f: [m.extents for m in S.scene_meshes("tweeze_mixed", p)] for f, p in params.items()}
     assert extents[0][0][0] < 0.19 and extents[1][0][0] > 0.25  # the tweezers' length (arms + butt)
-    assert extents[0][1][0] < 0.0251 and extents[1][1][0] > 0.0239  # the cube's edge (2.0-2.5 cm, 2.4-2.7 cm)
-    for f, p in params.items():  # the variant's meshes are the base task's, from the same values
-        base = S.scene_meshes("tweeze", p)
-        np.testing.assert_allclose(extents[f][0], base[0].extents)
-        np.testing.assert_allclose(extents[f][1], base[1].extents)
+    assert extents[0][1][0] < 0.0251 and extents[1][1][0] > 0.0239  # the object's edge (2.0-2.5 cm, 2.4-2.7 cm)
+    np.testing.assert_allclose(extents[0][1], [params[0]["cube_size"]] * 3)  # family 0: a cube
+    assert extents[1][1][2] >= 2.0 * extents[1][1][0] - 1e-9 and extents[1][1][2] > 0.048  # family 1: a tall block
+    for f, p in params.items():  # the tweezers are the base task's, from the same values
+        np.testing.assert_allclose(extents[f][0], S.scene_meshes("tweeze", p)[0].extents)
+    np.testing.assert_allclose(extents[0][1], S.scene_meshes("tweeze", params[0])[1].extents)  # and so is the cube
 
     # x_manip: the cube's distance from the tweezers' hinge (the tool pose's origin), as a fraction of the
     # tweezers' length (which the tool cloud carries)
