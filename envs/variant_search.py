@@ -89,11 +89,11 @@ def check_seeds(task: str, n: int) -> list[int]:
 
 
 def balanced_check_seeds(task: str, n: int, n_families: int, family_of: Callable[[list[int]], list[int]],
-                         limit: int = 20) -> list[int]:
+                         limit: int = 20) -> tuple[list[int], list[int]]:
     """The first seeds of ``check_seeds``' sequence that fill ``n // n_families`` scenes of each family (``n``
-    rounded down to a multiple of ``n_families``), in sequence order; ``family_of(seeds)`` reads each scene's
-    family. ValueError when ``limit * n`` seeds do not fill every family."""
-    per, seeds, counts = n // n_families, [], [0] * n_families
+    rounded down to a multiple of ``n_families``), in sequence order, and each one's family; ``family_of(seeds)``
+    reads each scene's family. ValueError when ``limit * n`` seeds do not fill every family."""
+    per, seeds, families, counts = n // n_families, [], [], [0] * n_families
     candidates = check_seeds(task, limit * n)
     for start in range(0, len(candidates), n):
         block = candidates[start:start + n]
@@ -101,8 +101,9 @@ def balanced_check_seeds(task: str, n: int, n_families: int, family_of: Callable
             if 0 <= family < n_families and counts[family] < per:
                 counts[family] += 1
                 seeds.append(seed)
+                families.append(family)
         if min(counts) == per:
-            return seeds
+            return seeds, families
     raise ValueError(f"{task}: {limit * n} check seeds gave families {counts}, not {per} of each")
 
 
@@ -156,17 +157,11 @@ def best_tried(search: dict[str, Any], top: int) -> list[tuple[int, ...]]:
     return [tuple(t["plan"]) for t in ranked[:top] if t["successes"] > 0]
 
 
-def check(task: str, plans: Sequence[tuple[int, ...]], seeds: Sequence[int],
-          run_with_family: Callable[[str, tuple[int, ...], Sequence[int]], tuple[list[Any], list[int]]]
-          ) -> tuple[dict[tuple[int, ...], list[bool]], list[int]]:
-    """Each of ``plans`` on every check scene: ``{plan: successes per scene}``, and each scene's family."""
-    out: dict[tuple[int, ...], list[bool]] = {}
-    families: list[int] = []
-    for plan in dict.fromkeys(plans):
-        outcomes, fams = run_with_family(task, plan, seeds)
-        out[plan] = [bool(o.success) for o in outcomes]
-        families = families or fams
-    return out, families
+def check(task: str, plans: Sequence[tuple[int, ...]], seeds: Sequence[int], run: Runner
+          ) -> dict[tuple[int, ...], list[bool]]:
+    """Each of ``plans`` (distinct) on every check scene: ``{plan: success per scene}``."""
+    return {plan: [bool(o.success) for o in run(task, [list(plan)] * len(seeds), list(seeds))]
+            for plan in dict.fromkeys(plans)}
 
 
 def verdict(record: dict[str, Any]) -> dict[str, Any]:
@@ -191,7 +186,7 @@ def _successes(record: dict[str, Any], plan: tuple[int, ...]) -> list[bool]:
     return next(c["successes"] for c in record["checked"] if tuple(c["plan"]) == tuple(plan))
 
 
-def search_variant(task: str, settings: SearchSettings, run: Runner, run_with_family: Any,
+def search_variant(task: str, settings: SearchSettings, run: Runner,
                    family_experts: dict[int, tuple[int, ...]], family_of: Callable[[list[int]], list[int]],
                    prior: Sequence[np.ndarray] | None = None,
                    searches: list[dict[str, Any]] | None = None) -> dict[str, Any]:
@@ -200,11 +195,10 @@ def search_variant(task: str, settings: SearchSettings, run: Runner, run_with_fa
     prior = load_plb().prior(task) if prior is None else prior
     searches = searches or [cem_search(task, start, prior, settings, run) for start in STARTS]
     found = [plan for s in searches for plan in best_tried(s, settings.top)]
-    seeds = balanced_check_seeds(task, settings.check_scenes, len(family_experts), family_of)
-    checked, families = check(task, [*family_experts.values(), *found], seeds, run_with_family)
+    seeds, families = balanced_check_seeds(task, settings.check_scenes, len(family_experts), family_of)
+    checked = check(task, [*family_experts.values(), *found], seeds, run)
     return {"task": task, "settings": dataclasses.asdict(settings), "check": CHECK_DESIGN, "searches": searches,
-            "check_seeds": seeds,
-            "families": families, "family_experts": {str(k): list(p) for k, p in family_experts.items()},
+            "check_seeds": seeds, "families": families, "family_experts": {str(k): list(p) for k, p in family_experts.items()},
             "checked": [{"plan": list(p), "found": p in found, "successes": s} for p, s in checked.items()]}
 
 
@@ -248,20 +242,6 @@ def render(records: Sequence[dict[str, Any]], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _run_with_family(task: str, plan: tuple[int, ...], seeds: Sequence[int]) -> tuple[list[Any], list[int]]:
-    """``plan`` on ``seeds``' scenes, and each scene's family read after its reset (-1 where the reset raised)."""
-    from envs.trials import run_policy  # heavy: loads the simulator
-
-    family: dict[int, int] = {}
-
-    def policy(i: int, env: Any, x_manip: Any) -> tuple[int, ...]:
-        family[i] = int(env.scene_params["family"])
-        return plan
-
-    outcomes = run_policy(task, policy, list(seeds), progress=False)
-    return outcomes, [family.get(i, -1) for i in range(len(seeds))]
-
-
 def _families_of(task: str, seeds: list[int]) -> list[int]:
     """Each scene's family, read after its reset (as a reference may); -1 where the reset raised."""
     from envs.tasks import fast_resets, make_env  # heavy: loads the simulator
@@ -282,6 +262,7 @@ def _families_of(task: str, seeds: list[int]) -> list[int]:
 
 def main(argv: list[str] | None = None) -> int:
     from envs.families import family_plans  # heavy: loads the simulator
+    from envs.tasks import TASK_ENV_IDS
     from envs.trials import run_trials
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -296,14 +277,19 @@ def main(argv: list[str] | None = None) -> int:
     records = json.loads(args.json.read_text()) if args.json.is_file() else []
     if not args.from_json:
         settings = SearchSettings(**{f.name: getattr(args, f.name) for f in dataclasses.fields(SearchSettings)})
-        for task in [t.strip() for t in args.tasks.split(",") if t.strip()]:
-            experts = family_plans(task)
-            if experts is None:
-                parser.error(f"task {task!r} has no scene families (family_expert_plans): not a mixed variant")
+        tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
+        unknown = [t for t in tasks if t not in TASK_ENV_IDS]
+        if unknown or not tasks:
+            parser.error(f"unknown task(s) {unknown or '(none given)'}; known: {', '.join(TASK_ENV_IDS)}")
+        plans = {task: family_plans(task) for task in tasks}  # every task checked before any search runs
+        flat = [task for task, experts in plans.items() if experts is None]
+        if flat:
+            parser.error(f"task(s) {flat} have no scene families (family_expert_plans): not mixed variants")
+        for task, experts in plans.items():
             same = [r for r in records if r["task"] == task and r["settings"] == dataclasses.asdict(settings)]
             if same and same[0].get("check") == CHECK_DESIGN:
                 continue
-            rec = search_variant(task, settings, partial(run_trials, progress=False), _run_with_family, experts,
+            rec = search_variant(task, settings, partial(run_trials, progress=False), experts,
                                  partial(_families_of, task), searches=same[0]["searches"] if same else None)
             records = [r for r in records if r["task"] != task] + [rec]
             write_atomic(args.json, json.dumps(records, indent=1) + "\n")

@@ -49,12 +49,6 @@ def families(seeds: list[int]) -> list[int]:
     return [family(s) for s in seeds]
 
 
-def family_runner(runner):
-    def run(task, plan, seeds):
-        return runner(task, [list(plan)] * len(seeds), list(seeds)), [family(s) for s in seeds]
-    return run
-
-
 EXPERTS = {0: (0, 0, 0, 0, 0, 0), 1: (1, 0, 0, 0, 0, 0)}
 
 
@@ -68,7 +62,8 @@ def test_starts_and_settings_are_checked() -> None:
     with pytest.raises(ValueError, match="check_scenes must be a positive integer, got 0"):
         SearchSettings(check_scenes=0)
     assert check_seeds("x_mixed", 3) == check_seeds("x_mixed", 5)[:3] != check_seeds("y_mixed", 3)
-    seeds = balanced_check_seeds("x_mixed", 41, 2, families)
+    seeds, fams = balanced_check_seeds("x_mixed", 41, 2, families)
+    assert fams == families(seeds)
     assert len(seeds) == 40 and families(seeds).count(0) == 20 and seeds == sorted(seeds, key=check_seeds(
         "x_mixed", 1000).index)  # the sequence's first scenes of each family, in its order
     with pytest.raises(ValueError, match="gave families"):
@@ -81,7 +76,7 @@ def test_the_search_finds_the_loophole_and_the_verdict_says_so() -> None:
     assert len(search["round_rates"]) == 3 and sum(t["scenes"] for t in search["tried"]) == 3 * 12 * 4
     best = best_tried(search, 3)
     assert best and best[0][0] == 2  # only a0 = 2 succeeds on every scene it met
-    rec = search_variant("x_mixed", settings, with_a_loophole, family_runner(with_a_loophole), EXPERTS, families, PRIOR)
+    rec = search_variant("x_mixed", settings, with_a_loophole, EXPERTS, families, PRIOR)
     fams, v = rec["families"], verdict(rec)
     assert v["best_plan"][0] == 2 and v["best"] == 1.0 and not v["holds"]
     assert v["own"] == {0: (fams.count(0), fams.count(0)), 1: (fams.count(1), fams.count(1))}
@@ -90,7 +85,7 @@ def test_the_search_finds_the_loophole_and_the_verdict_says_so() -> None:
 
 def test_a_variant_without_a_loophole_holds() -> None:
     settings = SearchSettings(rounds=2, per_round=10, scenes_per_plan=4, top=2, check_scenes=40)
-    rec = search_variant("x_mixed", settings, two_families, family_runner(two_families), EXPERTS, families, PRIOR)
+    rec = search_variant("x_mixed", settings, two_families, EXPERTS, families, PRIOR)
     fams = rec["families"]
     v = verdict(rec)
     # every fixed plan opens one family at most, and the check scenes hold as many of each: the best is half
