@@ -41,6 +41,7 @@ import numpy as np
 
 from prl import cem
 from prl.atomic import write_atomic
+from prl.constants import REPO_ROOT
 from prl.plb import load_plb
 from prl.stats import wilson_interval
 
@@ -50,6 +51,8 @@ FAMILY_TARGET = 0.9
 """... while each family's expert succeeds on at least this share of its family's scenes, and the oracle of all."""
 CHECK_DESIGN = "balanced"
 """How the check scenes are chosen (``balanced_check_seeds``): a record made otherwise has its checks run again."""
+SEARCH_RECORD = REPO_ROOT / "docs" / "variant_search.json"
+"""The committed record of every variant's search."""
 STARTS: tuple[str, ...] = ("prior+uniform", "uniform")
 """Where a search starts: the variant's prior mixed half and half with uniform, or uniform."""
 
@@ -182,6 +185,13 @@ def verdict(record: dict[str, Any]) -> dict[str, Any]:
     return {"best_plan": list(best_plan), "best": best, "best_n": n, "own": own, "oracle": sum(oracle), "holds": holds}
 
 
+def best_fixed_plan(task: str, path: Path = SEARCH_RECORD) -> list[int] | None:
+    """The best fixed plan the search found on ``task`` by its record at ``path`` (``verdict``), or None when the
+    record has no search of it. The simulator is not loaded."""
+    records = json.loads(Path(path).read_text()) if Path(path).is_file() else []
+    return next((verdict(r)["best_plan"] for r in records if r["task"] == task), None)
+
+
 def _successes(record: dict[str, Any], plan: tuple[int, ...]) -> list[bool]:
     return next(c["successes"] for c in record["checked"] if tuple(c["plan"]) == tuple(plan))
 
@@ -267,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", default="hammer_mixed,sweep_mixed,unscrew_mixed,tweeze_mixed")
-    parser.add_argument("--json", type=Path, default=Path("docs/variant_search.json"), help="the record (resumed)")
+    parser.add_argument("--json", type=Path, default=SEARCH_RECORD, help="the record (resumed)")
     parser.add_argument("--out", type=Path, default=Path("docs/variant_search.md"), help="the page")
     parser.add_argument("--from-json", action="store_true", help="only make the page from the record")
     for f in dataclasses.fields(SearchSettings):

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from prl.atomic import write_atomic
+from prl.stats import wilson_interval
 from prl.version import changed_files, outcome_file_digests, version_of
 
 DIGITS = 4
@@ -288,6 +289,15 @@ def demonstrations_digest(task: str, seeds: Sequence[int], plans: Sequence[Seque
     if extra:
         payload["extra"] = {k: np.asarray(extra[k], dtype=float).tolist() for k in sorted(extra)}
     return hashlib.sha256(json.dumps(payload, separators=(",", ":")).encode()).hexdigest()[:16]
+
+
+def rate_cell(successes: int, n: int) -> str:
+    """``'44/50 = 0.88 (0.76-0.94)'``: a report table's success count with its rate and Wilson interval (``'0/0'``
+    for no trial)."""
+    if n == 0:
+        return "0/0"
+    lo, hi = wilson_interval(successes, n)
+    return f"{successes}/{n} = {successes / n:.2f} ({lo:.2f}-{hi:.2f})"
 
 
 def stale_points(summaries: Mapping[str, Mapping[str, Any]],

@@ -30,16 +30,9 @@ import numpy as np
 from prl.atomic import write_atomic
 from prl.config import LN_METHODS, PAPER_LN_DEMO_STEPS, LNConfig
 from prl.constants import REPO_ROOT, TASKS
-from prl.ln_reference import (
-    read_references,
-    reference_file_name,
-    reference_kinds,
-    reference_label,
-    reference_seeds,
-)
-from prl.ln_summary import read_summaries, stale_points, stale_section
+from prl.ln_reference import read_references, reference_file_name, reference_note, reference_rows
+from prl.ln_summary import rate_cell, read_summaries, stale_points, stale_section
 from prl.robust_stats import probability_of_improvement, stratified_bootstrap_ci
-from prl.stats import wilson_interval
 from prl.task_registry import declared, units_text
 
 PAPER_TIMESTEPS = LNConfig().timesteps
@@ -154,13 +147,6 @@ def _pooled(members: Sequence[Mapping[str, Any]]) -> tuple[int, int]:
     return sum(s["eval"]["successes"] for s in members), sum(s["eval"]["n"] for s in members)
 
 
-def _rate(k: int, n: int) -> str:
-    if n == 0:
-        return "0/0"
-    lo, hi = wilson_interval(k, n)
-    return f"{k}/{n} = {k / n:.2f} ({lo:.2f}-{hi:.2f})"
-
-
 def _ci(estimate: float, lo: float, hi: float) -> str:
     return f"{estimate:.2f} ({lo:.2f}-{hi:.2f})"
 
@@ -192,43 +178,6 @@ def _task_order(task: str) -> tuple[int, str]:
     return (TASKS.index(task) if task in TASKS else len(TASKS), task)
 
 
-def reference_rows(ref: Mapping[str, Any]) -> list[str]:
-    """A success-table row per plan kind of a reference (``prl.ln_reference``): not trained, one run."""
-    rows = []
-    for kind in reference_kinds(ref["plans"]):
-        r = ref["plans"][kind]
-        rows.append(f"| {reference_label(kind)} (reference) | - | {r['successes']}/{r['n']} "
-                    f"| {_rate(r['successes'], r['n'])} | - | not trained |")
-    return rows
-
-
-def reference_note(ref: Mapping[str, Any], members: Sequence[Mapping[str, Any]]) -> str:
-    """Where a task's reference rows come from, and whether they ran on its points' scenes and code version (a
-    flag when not)."""
-    st, seeds = ref["settings"], reference_seeds(ref)
-    rn = f"; the RN is `{st['rn']}`" if "rn" in ref["plans"] else ""
-    text = (f"Reference rows (`{reference_file_name(ref['task'])}`): the task's expert plan, a plan sampled from its "
-            f"prior per scene{' and the RN argmax plan' if 'rn' in ref['plans'] else ''}"
-            f"{', the family oracle and each family expert plan' if 'oracle' in ref['plans'] else ''}, executed on the "
-            f"{len(seeds)} scenes of eval seed {st['eval_seed']} (scene seeds {seeds[0]} to {seeds[-1]}){rn}.")
-    if not members:
-        return text + " No point of this task yet."
-    point_seeds = {tuple(o["seed"] for o in s["eval"]["outcomes"]) for s in members}
-    if point_seeds == {tuple(seeds)}:
-        text += " The same scenes as every point's above."
-    else:
-        evals = sorted({(s["settings"].get("eval_seed"), len(s["eval"]["outcomes"])) for s in members}, key=str)
-        text += (" **Not the points' scenes**: the points ran on "
-                 + ", ".join(f"{n} scenes of eval seed {seed}" for seed, n in evals) + ".")
-    versions = sorted({s["code_version"] for s in members})
-    if versions == [ref["code_version"]]:
-        text += f" The same code version as the points (`{ref['code_version']}`)."
-    else:
-        text += (f" **Another code version**: the reference's `{ref['code_version']}`, the points' "
-                 + ", ".join(f"`{v}`" for v in versions) + ".")
-    return text
-
-
 def success_tables(groups: Mapping[Group, Sequence[Mapping[str, Any]]],
                    references: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
     """Per task, a table of its groups' final success (see the module docstring) and its reference plans' rows
@@ -243,20 +192,22 @@ def success_tables(groups: Mapping[Group, Sequence[Mapping[str, Any]]],
             k, n = _pooled(members)
             per_seed = ", ".join(f"{s['eval']['successes']}/{s['eval']['n']}" for s in members)
             seeds = ",".join(str(s["point"]["seed"]) for s in members)
-            lines.append(f"| {g.label} | {seeds} | {per_seed} | {_rate(k, n)} | {_iqm_cell({task: _runs(members)})} "
+            lines.append(f"| {g.label} | {seeds} | {per_seed} | {rate_cell(k, n)} | {_iqm_cell({task: _runs(members)})} "
                          f"| {_window(members)} |")
         if task in references:
             lines += reference_rows(references[task])
             lines += ["", reference_note(references[task], [s for g, m in groups.items() if g.task == task
                                                              for s in m])]
-        lines += ["", target_line(task, groups), ""]
+        lines += ["", target_line(task, groups, references.get(task)), ""]
     return lines
 
 
-def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> str:
+def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]],
+                ref: Mapping[str, Any] | None = None) -> str:
     """The target's verdict of one task: a paper task's LN pre-trained on K = 1,280 demonstration steps pooled >=
     ``TARGET``; a task variant's (``<task>_mixed``) LN pre-trained on its demos (the largest K run) >=
-    ``VARIANT_TARGET``."""
+    ``VARIANT_TARGET``, with the paper's reward or, beside it, with the reward paid on success (``physics_gated``),
+    and its RN's argmax plan (``ref``'s) >= ``VARIANT_TARGET``."""
     physics = {g.demo_steps: m for g, m in groups.items() if g.task == task and g.method == "physics"
                and g.timesteps == PAPER_TIMESTEPS and g.demo_steps > 0}
     if task in TASKS:
@@ -276,8 +227,12 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]]) 
              and g.timesteps == PAPER_TIMESTEPS and g.demo_steps == k for s in m]
     if gated:  # beside the target's verdict, never in its place: the reward is not the paper's
         won, n = _pooled(gated)
+        met = f" ({'met' if won / n >= target else '**missed**'})" if task not in TASKS and n else ""
         line += (f" With the reward paid only on success (physics_gated, the same K; not the paper's reward): "
-                 f"{_rate(won, n)} over {len(gated)} seed{'s' if len(gated) != 1 else ''}.")
+                 f"{rate_cell(won, n)} over {len(gated)} seed{'s' if len(gated) != 1 else ''}{met}.")
+    if task not in TASKS and ref and "rn" in ref["plans"]:
+        won, n = ref["plans"]["rn"]["successes"], ref["plans"]["rn"]["n"]
+        line += f" The RN argmax plan (reference): {rate_cell(won, n)}, {'met' if won / n >= target else '**missed**'}."
     return line
 
 

@@ -101,3 +101,43 @@ def test_the_command_executes_the_reference_plans(tmp_path: Path) -> None:
     ref = read_reference(tmp_path / "reference-hammer.json")
     assert [o["seed"] for o in ref["plans"]["prior"]["outcomes"]] == eval_scene_seeds(0, 2)
     assert ref["plans"]["expert"]["n"] == 2 and not any(o["error"] for o in ref["plans"]["expert"]["outcomes"])
+
+
+def test_extend_runs_only_the_best_fixed_plan_and_keeps_the_rn_rows(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                    capsys: pytest.CaptureFixture) -> None:
+    """``--extend`` on a current reference: only the best fixed plan runs (stand-in outcomes), the RN's rows and
+    settings stay though no RN is given; a reference of another code version is an error naming both."""
+    from flows import ln_reference
+
+    ref = read_reference(REFERENCE)
+    record = {k: ref[k] for k in REFERENCE_RECORD_KEYS}
+    plan = [1, 3, 1, 3, 4, 0]
+    without_rn = {k: v for k, v in record["settings"].items() if k not in ln_reference.RN_SETTINGS}
+    assert ln_reference.extendable(ref, {**record, "settings": {**without_rn, "best_fixed": plan}}) is None
+    assert ln_reference.extendable(None, record) == "there is no committed reference to extend"
+    assert "eval_scenes" in ln_reference.extendable(ref, {**record, "settings": {**without_rn, "eval_scenes": 5}})
+    ran: list[tuple] = []
+
+    def fake_best(task_name, settings, seeds):
+        ran.append((task_name, tuple(settings["best_fixed"]), tuple(seeds)))
+        return [SimpleNamespace(seed=s, plan=tuple(settings["best_fixed"]), success=i < 3, measure=1.0, error="")
+                for i, s in enumerate(seeds)]
+
+    monkeypatch.setattr(ln_reference, "best_fixed_outcomes", fake_best)
+    seeds = ref["plans"]["expert"]["outcomes"]
+    out = ln_reference.extend_reference(ref, {**record, "settings": {**without_rn, "best_fixed": plan}},
+                                        [o["seed"] for o in seeds])
+    assert ran == [("hammer", tuple(plan), tuple(o["seed"] for o in seeds))]
+    assert out["plans"]["best_fixed"]["successes"] == 3 and out["plans"]["rn"] == ref["plans"]["rn"]
+    assert out["settings"] == {**ref["settings"], "best_fixed": plan}
+    path = ln_reference.write_reference(tmp_path, out)
+    assert read_reference(path)["plans"]["best_fixed"]["outcomes"][0]["plan"] == plan
+    # the fixture's code version is not today's: extending it is refused, and nothing is written
+    shutil.copytree(FIXTURES, tmp_path / "ln")
+    before = (tmp_path / "ln" / REFERENCE.name).read_bytes()
+    monkeypatch.setattr(ln_reference, "evaluation_seeds", lambda seed, n: [o["seed"] for o in seeds])
+    assert ln_reference.main(["--tasks", "hammer", "--eval-scenes", "4", "--results-dir", str(tmp_path / "ln"),
+                              "--extend"]) == 2
+    assert re.search(r"--extend hammer: its code version d0c146fe91b77c68 is not today's [0-9a-f]{16}",
+                     capsys.readouterr().err)
+    assert (tmp_path / "ln" / REFERENCE.name).read_bytes() == before and len(ran) == 1

@@ -17,7 +17,9 @@ from prl.ln_reference import (
     read_references,
     reference_kinds,
     reference_label,
+    reference_note,
     reference_reuse,
+    reference_rows,
     reference_seeds,
     write_reference,
 )
@@ -64,6 +66,11 @@ def test_plan_result_counts_and_rounds() -> None:
     (lambda r: r["plans"].update({"family x expert": r["plans"]["prior"]}), r"unknown \['family x expert'\]"),
     (lambda r: r["plans"].update({"family 1 expert": {**r["plans"]["prior"], "n": 3}}),
      r"plans.family 1 expert says 1/3 but"),
+    (lambda r: r["plans"].update(best_fixed=r["plans"]["expert"]), "settings.best_fixed is missing"),
+    (lambda r: r["settings"].update(best_fixed=[0, 3, 2, 0, 0, 1]), "the plans have no best_fixed"),
+    (lambda r: r.update(plans={**r["plans"], "best_fixed": r["plans"]["prior"]},
+                        settings={**r["settings"], "best_fixed": [0, 3, 2, 0, 0, 1]}),
+     r"plans.best_fixed ran \[\d, \d, \d, \d, \d, \d\], settings.best_fixed is \[0, 3, 2, 0, 0, 1\]"),
 ])
 def test_a_malformed_reference_is_named(tmp_path: Path, edit, match: str) -> None:
     ref = json.loads(REFERENCE.read_text())
@@ -118,3 +125,10 @@ def test_a_mixed_variants_kinds_are_kept_in_the_reports_order(tmp_path: Path) ->
                                                               "family 10 expert"]
     assert reference_label("family 2 expert") == "family 2's expert plan"
     assert reference_label("oracle").startswith("family oracle")
+    ref["plans"]["best_fixed"] = copy.deepcopy(ref["plans"]["expert"])
+    ref["settings"]["best_fixed"] = ref["plans"]["expert"]["outcomes"][0]["plan"]
+    path.write_text(json.dumps(ref))
+    assert reference_kinds(read_reference(path)["plans"])[3:5] == ["oracle", "best_fixed"]
+    note = reference_note(ref, [])
+    assert f"the best fixed plan its search found (`{ref['settings']['best_fixed']}`" in note
+    assert reference_rows(ref)[4].startswith("| best fixed plan of the variant search (reference) | - | 4/4 |")

@@ -158,7 +158,7 @@ def test_a_malformed_reference_is_named(tmp_path: Path) -> None:
 
 def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     """A paper task's target is K = 1,280 pooled >= 0.90; a variant's is its largest K run pooled >= 0.85 (#26),
-    counted by hand."""
+    with the reward paid on success beside it, and its RN argmax plan >= 0.85; counted by hand."""
     from prl.report import Group, target_line
 
     def points(*counts: int) -> list[dict]:
@@ -178,7 +178,11 @@ def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     assert target_line("unscrew_mixed", groups) == (
         "Target (a task variant, physics pre-trained on its demos (K = 400), pooled >= 0.85): met (85/100 over 2 "
         "seeds). With the reward paid only on success (physics_gated, the same K; not the paper's reward): "
-        "94/100 = 0.94 (0.88-0.97) over 2 seeds.")
+        "94/100 = 0.94 (0.88-0.97) over 2 seeds (met).")
+    rn = {"plans": {"rn": {"successes": 42, "n": 50}}}  # a variant's RN argmax is held to the same target
+    assert target_line("unscrew_mixed", groups, rn).endswith(
+        "over 2 seeds (met). The RN argmax plan (reference): 42/50 = 0.84 (0.71-0.92), **missed**.")
+    assert target_line("hammer", groups, rn).endswith("over 2 seeds).")  # a paper task's target is the LN's only
     assert target_line("sweep_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos, "
                                                   "pooled >= 0.85): not run yet.")
 
