@@ -25,7 +25,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from prl.constants import N_JOINTS
-from prl.export_schema import read_scenes
+from prl.export_schema import read_scenes, replay_actions
 from prl.stages import STAGES
 
 
@@ -85,6 +85,16 @@ def replay_episode(env: Any, seed: int, actions: np.ndarray, states: np.ndarray,
     if info.get("error"):
         raise RuntimeError(info["error"])
     return bool(info["success"]), float(info["measure"]), deviation
+
+
+def demo_replays(env: Any, demo: Any) -> bool:
+    """Whether a recorded demo (``prl.demo.Demo``) succeeds again when its ``action`` stream, as the export writes it
+    (``prl.export_schema.replay_actions`` of its targets), is replayed open loop in ``env`` (a ``JointControlEnv`` of
+    the demo's length) on its scene, as ``replay_dataset`` replays an exported episode."""
+    states = np.concatenate([np.asarray(demo.qpos), np.asarray(demo.qvel)], axis=1)
+    success, _, _ = replay_episode(env, demo.seed, replay_actions(np.asarray(demo.target)), states,
+                                   np.asarray(demo.stage).reshape(-1))
+    return success
 
 
 def choose_episodes(scenes: Sequence[dict[str, Any]], per_task: int, tasks: Sequence[str] | None = None) -> list[int]:

@@ -20,7 +20,9 @@ On disk, per shard ``<out>/<task>/shard<k>/``:
   success, measure; ``fault`` when the
   executor ended a failed plan itself, ``decided`` with the reason and ``frames`` with the physics frames
   stepped when the attempt was ended early as a decided failure (``ExecutorConfig.end_decided``: its measure is
-  then the one at the early end), ``error`` with the exception text when the attempt raised), appended
+  then the one at the early end), ``replayed: false`` when it succeeded but its ``action`` stream replayed at
+  50 Hz did not (``ShardSpec.replay_check``: no demo is kept), ``error`` with the exception text when the
+  attempt raised), appended
   and flushed, so the yield per task and per plan dimension, and how often attempts fault or err, can be
   computed. An attempt that raises (a bug, a PhysX error) is recorded as failed and the shard goes on
   with a rebuilt environment;
@@ -49,6 +51,7 @@ from tqdm.auto import tqdm
 
 from envs.execution import ExecutorConfig
 from envs.executor import PlanExecutor
+from envs.replay import demo_replays
 from envs.tasks import fast_resets, make_env, task_class
 from envs.trials import error_text
 from prl.atomic import write_atomic
@@ -105,6 +108,9 @@ class ShardSpec:
     replay_weights: tuple[float, ...] = ()
     """One weight per plan of ``replays`` (its importance weight: a weighted proposal) that a replay is chosen in
     proportion to; empty: uniformly."""
+    replay_check: bool = False
+    """Keep a successful attempt's demo only when its ``action`` stream replays it at the dataset's 50 Hz
+    (``envs.replay.demo_replays``); one that does not is recorded as failed, with ``replayed: false``."""
 
     def __post_init__(self) -> None:
         if self.n_success < 0:
@@ -193,7 +199,7 @@ def _append(shard_dir: Path, row: dict) -> None:
         fh.flush()
 
 
-_KEPT: dict[tuple[str, int], tuple[Any, PlanExecutor, ExitStack]] = {}
+_KEPT: dict[tuple[str, int], tuple[Any, PlanExecutor | None, ExitStack]] = {}
 """Environments kept alive between ``run_shard`` calls of one process (``keep_env``): a Dask worker runs many
 shard-rounds of a few tasks, and rebuilding the env for each would cost more than a round's worth of resets."""
 
@@ -218,11 +224,28 @@ def _environment(task: str, n_frames: int, keep: bool, cleanup: ExitStack) -> tu
     return env, executor
 
 
+def _replay_environment(task: str, steps: int, keep: bool, cleanup: ExitStack) -> Any:
+    """The task's joint-control env of ``steps`` 50 Hz steps that checks a demo's replay (``replay_check``): a kept
+    one (``keep``), or a new one closed by ``cleanup``."""
+    from envs.joint_env import JointControlEnv  # heavy: the joint-control env, only for a replay check
+
+    key = (f"{task}/replay", int(steps))
+    if keep and key in _KEPT:
+        return _KEPT[key][0]
+    stack = ExitStack()
+    env = JointControlEnv(task, steps=int(steps))
+    stack.callback(env.close)
+    if keep:
+        _KEPT[key] = (env, None, stack)
+    else:
+        cleanup.push(stack)
+    return env
+
+
 def _drop_environment(task: str, n_frames: int) -> None:
-    """Close a kept env (after an attempt raised: the next attempt gets a fresh one)."""
-    kept = _KEPT.pop((task, int(n_frames)), None)
-    if kept is not None:
-        kept[2].close()
+    """Close the task's kept envs (after an attempt raised: the next attempt gets fresh ones)."""
+    for key in [k for k in _KEPT if k == (task, int(n_frames)) or k[0] == f"{task}/replay"]:
+        _KEPT.pop(key)[2].close()
 
 
 def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -> ShardResult:
@@ -272,10 +295,15 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
                        **_logps(spec, probs, prior, plan, replays, replay_weights)}
                 try:
                     result = executor.run(plan, seed=scene_seed)
+                    replayed = True
                     if result.success:
-                        save_demo(from_episode(spec.task, scene_seed, text, result, env,
-                                               proposal_logp=row["proposal_logp"], prior_logp=row["prior_logp"]),
-                                  demo_path)
+                        demo = from_episode(spec.task, scene_seed, text, result, env,
+                                            proposal_logp=row["proposal_logp"], prior_logp=row["prior_logp"])
+                        if spec.replay_check:
+                            steps = int(np.asarray(demo.stage).shape[0])
+                            replayed = demo_replays(_replay_environment(spec.task, steps, keep_env, cleanup), demo)
+                        if replayed:
+                            save_demo(demo, demo_path)
                 except Exception as exc:  # noqa: BLE001 - one attempt's error must not end the run
                     row |= {"success": False, "measure": float("nan"), "error": error_text(exc)}
                     _log.warning("%s shard %d attempt %d raised: %s", spec.task, spec.shard, attempt, row["error"])
@@ -284,8 +312,10 @@ def run_shard(spec: ShardSpec, progress: bool = False, keep_env: bool = False) -
                     _drop_environment(spec.task, spec.n_frames)
                     env = executor = None
                 else:
-                    row |= {"success": bool(result.success),
+                    row |= {"success": bool(result.success) and replayed,
                             "measure": float(result.outcome.get(measure_key, float("nan")))}
+                    if not replayed:  # succeeded, but not by its 50 Hz replay: no demo
+                        row["replayed"] = False
                     if result.fault and not result.success:  # (a demo's row, rebuilt after a kill, has none)
                         row["fault"] = result.fault
                     if result.decided:  # ended early: its measure is the one at the early end
@@ -438,14 +468,15 @@ def task_attempts(out_dir: Path, task: str) -> list[dict]:
 
 def yield_report(out_dir: Path, task: str, n_frames: int = EPISODE_FRAMES) -> dict[str, float]:
     """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised
-    (``errors``), that the executor ended itself (``faults/<fault>``) and that ended early as decided failures
-    (``decided``), and the plan-episode physics frames stepped per attempt (``n_frames`` each, but those ended
+    (``errors``), that the executor ended itself (``faults/<fault>``), that ended early as decided failures
+    (``decided``) and that succeeded but not by their replay (``not_replayed``, ``ShardSpec.replay_check``), and the plan-episode physics frames stepped per attempt (``n_frames`` each, but those ended
     early), from the attempt logs."""
     rows = task_attempts(out_dir, task)
     report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
     report["yield"] = report["successes"] / report["attempts"] if rows else 0.0
     report["errors"] = float(sum("error" in r for r in rows))
     report["decided"] = float(sum("decided" in r for r in rows))
+    report["not_replayed"] = float(sum(r.get("replayed") is False for r in rows))
     report["frames_per_attempt"] = float(np.mean([r.get("frames", n_frames) for r in rows])) if rows else 0.0
     for fault in FAULTS:
         report[f"faults/{fault}"] = float(sum(r.get("fault") == fault for r in rows))

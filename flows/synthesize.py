@@ -66,10 +66,11 @@ def submit_shard(client: Client, spec: ShardSpec) -> Future:
 
 
 def shard_specs(tasks: list[str], demos_per_task: int, seed: int, n_shards: int, out_dir: Path,
-                n_frames: int = EPISODE_FRAMES, max_attempts: int = 10_000) -> list[ShardSpec]:
+                n_frames: int = EPISODE_FRAMES, max_attempts: int = 10_000, replay_check: bool = False
+                ) -> list[ShardSpec]:
     """The shards of a synthesis run (empty shards are left out)."""
     return [ShardSpec(task=t, shard=k, n_success=n, run_seed=seed, out_dir=Path(out_dir), n_frames=n_frames,
-                      max_attempts=max_attempts)
+                      max_attempts=max_attempts, replay_check=replay_check)
             for t in tasks for k, n in enumerate(split_successes(demos_per_task, n_shards)) if n > 0]
 
 
@@ -244,7 +245,9 @@ def synthesis_dir(cfg: PipelineConfig) -> Path:
     how = "prior" if p.kind == "prior" else \
         f"adaptive-r{p.round_attempts}-s{p.smoothing:g}-f{p.floor:g}" + (f"-d{p.defensive:g}" if p.defensive else "") \
         + (f"-x{p.replay:g}" if p.replay else "") + ("-w" if p.weighted else "")
-    return cfg.output_dir / "synthesis" / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}"
+    checked = "-replayed" if cfg.replay_check else ""
+    return (cfg.output_dir / "synthesis"
+            / f"seed{cfg.seed}-shards{cfg.n_shards}-frames{cfg.episode_frames}-{how}{checked}")
 
 
 @flow(name="synthesis", log_prints=True, validate_parameters=False)
@@ -260,9 +263,11 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
     proposal = cfg.proposal_config()
     with tracking.child_run("synthesis", params={"demos_per_task": cfg.demos_per_task, "n_shards": cfg.n_shards,
                                                   "workers": cfg.workers, "dask_address": cfg.dask_address,
+                                                  "replay_check": cfg.replay_check,
                                                   **{f"proposal.{k}": v for k, v in vars(proposal).items()}}):
         demo_dir = synthesis_dir(cfg)
-        specs = shard_specs(tasks, cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir, n_frames=cfg.episode_frames)
+        specs = shard_specs(tasks, cfg.demos_per_task, cfg.seed, cfg.n_shards, demo_dir, n_frames=cfg.episode_frames,
+                            replay_check=cfg.replay_check)
         already = sum(r["success"] for spec in specs for r in read_attempts(spec.dir))  # resumed runs
         t0 = time.perf_counter()
         shards, timing = synthesize_timed(specs, cfg.workers, cfg.dask_address, proposal)
@@ -277,12 +282,15 @@ def synthesis_stage(cfg: PipelineConfig, trials: list[Trials]) -> Synthesis:
             print(f"{name}: {int(report['successes'])} demos kept of {int(report['attempts'])} attempts "
                   f"(yield {report['yield']:.2f}; {report['frames_per_attempt']:.0f} physics frames per attempt, "
                   f"{int(report['decided'])} ended early as decided failures; {int(report['errors'])} raised, "
+                  + (f"{int(report['not_replayed'])} succeeded but not by their 50 Hz replay, "
+                     if cfg.replay_check else "")
                   + ", ".join(f"{int(v)} {k.split('/')[1]}" for k, v in report.items() if k.startswith("faults/"))
                   + ")")
         publish_table("synthesis-yield", [
             {"task": name, "attempts": int(r["attempts"]), "demos kept": int(r["successes"]),
              "yield": round(r["yield"], 3), "frames per attempt": round(r["frames_per_attempt"], 1),
              "ended early (decided)": int(r["decided"]), "raised": int(r["errors"]),
+             **({"not replayed": int(r["not_replayed"])} if cfg.replay_check else {}),
              **{f"ended: {k.split('/')[1]}": int(v) for k, v in r.items() if k.startswith("faults/")}}
             for name, r in reports.items()], f"Demonstrations kept per task (plans drawn from the {proposal.kind} "
                                              f"proposal)")

@@ -193,6 +193,10 @@ class PipelineConfig:
     proposal_weighted: bool = ProposalConfig.weighted
     """Count each success by its importance weight in the adaptive proposal's update and replays (towards the
     prior's successful plans rather than the most frequent ones: ``prl.proposal``)."""
+    replay_check: bool = False
+    """Keep a demo only when its ``action`` stream, replayed open loop at the dataset's 50 Hz in the joint-control
+    environment, succeeds again (``envs.replay.demo_replays``; one more episode per kept demo): a dataset every
+    episode of which ``prl-replay`` reproduces, for joint-space learners (docs/guide/design.md "Joint space")."""
     workers: int = 2
     """Dask worker processes of the local cluster; also the processes that write the dataset (without video, from
     ``prl.export_merge.PARALLEL_MIN_EPISODES`` episodes per process)."""

@@ -147,3 +147,39 @@ def test_the_imitation_flow_trains_registers_and_rolls_out(dataset: Path, tmp_pa
     assert main([*args, "--dataset-root", str(old)]) == 2
     assert "no 'observation.environment_state' feature" in capsys.readouterr().err
     assert len(mlflow.search_runs(experiment_names=["prl"])) == len(runs)
+
+
+@pytest.mark.sim
+def test_the_synthesis_replay_check_keeps_only_demos_that_replay(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """``replay_check``: a kept demo replays (checked again in a fresh env); the same demo with its targets held at
+    the first record does not (the hammer never swings); and an attempt that succeeded but did not replay is
+    recorded as failed, ``replayed: false``, without a demo file, and counted by the yield report."""
+    from envs import synthesis
+    from envs.joint_env import JointControlEnv
+    from envs.replay import demo_replays
+    from prl.demo import load_demo
+
+    spec = synthesis.ShardSpec(task="hammer", shard=0, n_success=1, run_seed=5, out_dir=tmp_path / "checked",
+                               max_attempts=8, replay_check=True)
+    result = synthesis.run_shard(spec)
+    assert result.successes == 1 and len(result.demo_paths) == 1
+    demo = load_demo(result.demo_paths[0])
+    env = JointControlEnv("hammer", steps=int(np.asarray(demo.stage).shape[0]))
+    try:
+        assert demo_replays(env, demo)
+        held = np.repeat(np.asarray(demo.target)[:1], len(demo.target), axis=0)
+        demo.arrays["target"] = held
+        assert not demo_replays(env, demo)
+    finally:
+        env.close()
+
+    monkeypatch.setattr(synthesis, "demo_replays", lambda env, demo: False)
+    refused = synthesis.ShardSpec(task="hammer", shard=0, n_success=1, run_seed=5, out_dir=tmp_path / "refused",
+                                  max_attempts=3, replay_check=True)
+    out = synthesis.run_shard(refused)
+    rows = synthesis.read_attempts(refused.dir)
+    assert out.successes == 0 and not out.demo_paths and not list(refused.dir.glob("ep*.npz"))
+    not_replayed = [r for r in rows if r.get("replayed") is False]
+    assert not_replayed and all(not r["success"] and r["measure"] > 0 for r in not_replayed)
+    assert synthesis.yield_report(tmp_path / "refused", "hammer")["not_replayed"] == len(not_replayed)

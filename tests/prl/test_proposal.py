@@ -396,7 +396,7 @@ def test_replays_keep_the_weights_bounded_and_restore_the_prior() -> None:
     np.testing.assert_allclose(weighted_choice_freqs(kept, (3, 2), w)[0], want0, atol=0.03)
 
 
-def test_the_synthesis_directory_names_the_replay_share_unless_it_is_zero_and_the_weighting(tmp_path) -> None:
+def test_the_synthesis_directory_names_the_replay_share_the_weighting_and_the_replay_check(tmp_path) -> None:
     from flows.synthesize import synthesis_dir
     from prl.config import ConfigError, make_config
 
@@ -405,5 +405,7 @@ def test_the_synthesis_directory_names_the_replay_share_unless_it_is_zero_and_th
                      "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2"]
     weighted = synthesis_dir(make_config(output_dir=str(tmp_path), proposal_replay=0.5, proposal_weighted=True))
     assert weighted.name == "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2-x0.5-w"
+    checked = synthesis_dir(make_config(output_dir=str(tmp_path), proposal_replay=0.0, replay_check=True))
+    assert checked.name == "seed0-shards2-frames750-adaptive-r32-s0.5-f0.2-d0.2-replayed"  # other attempts' demos
     with pytest.raises(ConfigError, match="replay share must be a number in \\[0, 1\\], got -1"):
         make_config(output_dir=str(tmp_path), proposal_replay=-1)
