@@ -2,7 +2,7 @@
 (neither for a sweep of ``--methods joint`` alone).
 
 Points = tasks x methods x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
-K, BC for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
+K, BC and imitation for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
 point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
 run is found again by a key over the sweep's settings (not its list of points), and points that already
 have a finished child run and a summary are not re-run, so adding seeds or methods runs only the new ones.
@@ -47,7 +47,7 @@ def sweep_points(tasks: list[str], methods: list[str], demo_steps: list[int], se
     points = []
     for task_name in tasks:
         for method in methods:
-            steps = [0] if method == "joint" else [k for k in demo_steps if method != "bc" or k > 0]
+            steps = [0] if method == "joint" else [k for k in demo_steps if method not in ("bc", "imitation") or k > 0]
             for k in steps:
                 points.extend(LNPoint(task_name, method, int(k), int(s)) for s in seeds)
     if not points:
@@ -66,13 +66,16 @@ def finished_points(parent_run_id: str) -> set[str]:
 
 def sweep_settings(cfg: AblationConfig) -> dict[str, Any]:
     """What makes two sweeps the same (their points aside): the parent run's params, hashed into its key. The LN
-    settings beyond the first keys enter only where they differ from the paper's, so that earlier sweeps
-    keep their key."""
+    settings beyond the first keys, and the imitation's, enter only where they differ from the defaults, so that
+    earlier sweeps keep their key."""
     first = ("timesteps", "pretrain_epochs", "steps_per_update")
     paper = LNConfig()
     changed = {f"ln.{f.name}": getattr(cfg.ln, f.name) for f in dataclasses.fields(LNConfig)
                if f.name not in first and f.name not in cfg.LN_SET_PER_POINT
                and getattr(cfg.ln, f.name) != getattr(paper, f.name)}
+    imitation = type(cfg.imitation)()
+    changed |= {f"imitation.{f.name}": getattr(cfg.imitation, f.name) for f in dataclasses.fields(imitation)
+                if f.name != "seed" and getattr(cfg.imitation, f.name) != getattr(imitation, f.name)}
     paths = {name: None if getattr(cfg, name) is None else str(getattr(cfg, name).resolve())
              for name in ("dataset_root", "pointnet_path")}
     return {"dataset_root": paths["dataset_root"], "pointnet": paths["pointnet_path"],
@@ -114,7 +117,8 @@ def ablation(dataset_root: str | None, pointnet_path: str | None,
     from envs.trials import eval_scene_seeds
     from flows.compute_features import rn_features
     from flows.synthesize import make_task_runner
-    from prl.export_schema import read_scenes
+    from prl.export_schema import read_scenes, require_feature
+    from prl.imitation import IMITATION_INPUTS
 
     cfg = make_ablation_config(dataset_root, pointnet_path, **(overrides or {}))
     tasks = list(cfg.tasks)
@@ -129,13 +133,17 @@ def ablation(dataset_root: str | None, pointnet_path: str | None,
         if p.demo_steps > available:
             raise ValueError(f"demo_steps={p.demo_steps} exceeds the {available} {p.task} demonstrations in "
                              f"{str(root)!r}; synthesise more or sweep fewer steps")
+    if any(p.method == "imitation" for p in points):  # the policy reads what the joint-control env observes
+        features = json.loads((root / "meta" / "info.json").read_text())["features"]
+        for name in IMITATION_INPUTS:
+            require_feature(features, name, root)
     out = cfg.output_dir
     results_dir = cfg.results_dir.resolve() if cfg.results_dir is not None else None
     settings = sweep_settings(cfg)
     key = _sweep_key(settings)  # the points are left out: a sweep given more seeds or methods resumes
     setup = LNSetup(demo_dir=out / "demos", pointnet_path=cfg.pointnet_path, out_dir=out / "points",
                     eval_seeds=tuple(eval_scene_seeds(cfg.eval_seed, cfg.eval_scenes)), ln=cfg.ln,
-                    n_points=cfg.n_points, progress=False)
+                    n_points=cfg.n_points, progress=False, dataset_root=root, imitation=cfg.imitation)
     workers, dask_address = cfg.workers, cfg.dask_address
     tracking.configure("prl")
     with _parent(key, f"ln-ablation-{key}", settings) as parent:
@@ -179,7 +187,8 @@ def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, 
             futures = [ln_point.submit(p, setup, parent_id) for p in todo]
         else:
             futures = [ln_committed_point.submit(p, setup, parent_id, records[p.name], results_dir) for p in todo]
-        _watch(parent_id, {p.name for p in todo}, len(todo) * setup.ln.timesteps, futures)
+        _watch(parent_id, {p.name for p in todo}, sum(p.method != "imitation" for p in todo) * setup.ln.timesteps,
+               futures)
         return [f.result() for f in futures]
 
     return {s["name"]: s for s in _points(todo)}
@@ -233,6 +242,8 @@ def draw_fig8(summaries: dict[str, Any], out: Path) -> dict[str, Any]:
     by_task: dict[str, dict[str, list]] = {}
     for s in summaries.values():
         p = s["point"]
+        if not s["rows"]:  # imitation: no RL update, its curve is a loss
+            continue
         label = f"{p['method']} K={p['demo_steps']}"
         if p["method"] == "joint":  # named by its budget: an equal-frames run is 15x to 75x longer
             label = f"joint control, {int(s['rows'][-1]['timesteps']) if s['rows'] else 0:,} steps"
@@ -259,8 +270,9 @@ def read_summaries(sweep_dirs: list[str]) -> dict[str, Any]:
     return summaries
 
 
-CLI_EXCLUDE: tuple[str, ...] = tuple(f"ln.{n}" for n in AblationConfig.LN_SET_PER_POINT)
-"""``AblationConfig`` fields without a generated flag: the LN settings each sweep point sets itself."""
+CLI_EXCLUDE: tuple[str, ...] = (*(f"ln.{n}" for n in AblationConfig.LN_SET_PER_POINT),
+                                 *(f"imitation.{n}" for n in AblationConfig.IMITATION_SET_PER_POINT))
+"""``AblationConfig`` fields without a generated flag: the LN and imitation settings each sweep point sets itself."""
 
 
 def cli_parser() -> argparse.ArgumentParser:

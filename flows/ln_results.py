@@ -30,6 +30,7 @@ code version and judged under another is not a result of either.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 from pathlib import Path
 from typing import Any
@@ -71,9 +72,13 @@ def point_settings(point: LNPoint, setup: LNSetup, eval_seed: int,
     (``prl.config.LNConfig.params`` of the point's config), the evaluation's scene seed and count, the procedure;
     for the plan-space methods also the plan environment's physics frames and surface points, the PointNet's file name
     (keyed by its config and code version) and the ``recipe`` of the task's demonstrations (``dataset_recipe``);
-    joint control uses none of these."""
-    settings: dict[str, Any] = {**point_config(point, setup.ln).params(), "eval_seed": int(eval_seed),
-                                "eval_scenes": len(setup.eval_seeds), "procedure": POINT_PROCEDURE}
+    joint control uses none of these. An imitation point's are its policy's settings (``prl.imitation``), the
+    evaluation's, the procedure and the recipe."""
+    common = {"eval_seed": int(eval_seed), "eval_scenes": len(setup.eval_seeds), "procedure": POINT_PROCEDURE}
+    if point.method == "imitation":  # no LN: the policy's settings, on the same demonstrations' episodes
+        policy = dataclasses.replace(setup.imitation, seed=point.seed)
+        return {**{f"imitation.{k}": v for k, v in dataclasses.asdict(policy).items()}, **common, "dataset": recipe}
+    settings: dict[str, Any] = {**point_config(point, setup.ln).params(), **common}
     if point.method != "joint":
         settings.update(n_frames=int(setup.n_frames or EPISODE_FRAMES), n_points=int(setup.n_points),
                         pointnet=Path(setup.pointnet_path).name, dataset=recipe)
@@ -119,7 +124,7 @@ def point_records(points: list[LNPoint], setup: LNSetup, dataset_root: Path, eva
     pointnet = file_digest(setup.pointnet_path) if plan_tasks else None
     joint = {p.name: p.method == "joint" for p in points}
     return {p.name: {"point": {"task": p.task, "method": p.method, "demo_steps": p.demo_steps, "seed": p.seed},
-                     "timesteps": int(setup.ln.timesteps),
+                     "timesteps": 0 if p.method == "imitation" else int(setup.ln.timesteps),
                      "settings": point_settings(p, setup, eval_seed, None if joint[p.name] else recipes[p.task]),
                      "code_version": version_of(files[p.task, p.method]),
                      "code_files": files[p.task, p.method],
@@ -147,12 +152,14 @@ def committed_summaries(points: list[LNPoint], results_dir: Path,
 
 def committed_summary(summary: dict[str, Any], record: dict[str, Any], started: str, finished: str,
                       cores: int) -> dict[str, Any]:
-    """The committed form of ``flows.train_ln.run_point``'s ``summary``: its ``record``, the rounded curve and
-    evaluation, the run id and the compute; no checkpoint (a local file) and no pre-training losses."""
+    """The committed form of ``flows.train_ln.run_point``'s ``summary``: its ``record``, the rounded curve (and an
+    imitation point's training loss) and evaluation, the run id and the compute; no checkpoint (a local file) and no
+    pre-training losses."""
     ev = summary["eval"]
     return {**record, "name": summary["name"], "run_id": summary["run_id"], "rows": compact(thin_rows(summary["rows"])),
             "eval": {"successes": int(ev["successes"]), "n": int(ev["n"]), "ci95": compact(list(ev["ci95"])),
                      "outcomes": compact(ev["outcomes"])},
+            **({"loss": compact(thin_rows(summary["loss"]))} if "loss" in summary else {}),
             "train_seconds": round(float(summary["train_seconds"]), 1),
             "eval_seconds": round(float(summary.get("eval_seconds", 0.0)), 1),
             "started": started, "finished": finished, "cores": int(cores)}

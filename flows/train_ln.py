@@ -9,7 +9,8 @@ Wilson interval). Variants: ``physics`` (A2C over the Representation Space, pre-
 critic on ``demo_steps`` demonstrations; 0 is pure RL), ``bc`` (the same with the actor alone
 pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``), and ``physics_gated`` (not the paper's:
 the physics method with the reward paid only on success, ``gated_rewards``; the curve's ``ln/reward`` stays the
-measure).
+measure). ``imitation`` is no A2C run: LeRobot's ACT trained on the same K demonstrations' joint actions and rolled
+out in the joint-control environment (``run_imitation_point``); its curve is the training loss.
 
 Used by the pipeline's ``ln`` stage (``ln_stage``) and fanned out by ``flows.ablation``.
 """
@@ -34,6 +35,7 @@ from flows.evaluate_rn import RNEval
 from prl import tracking
 from prl.atomic import atomic_file, write_atomic
 from prl.config import LN_METHODS, LNConfig, PipelineConfig
+from prl.imitation import ImitationConfig
 
 
 @dataclass(frozen=True)
@@ -52,8 +54,8 @@ class LNPoint:
             raise ValueError(f"demo_steps must be an integer >= 0, got {self.demo_steps!r}")
         if self.method == "joint" and self.demo_steps:
             raise ValueError(f"the joint-control baseline has no demonstration pre-training (demo_steps={self.demo_steps})")
-        if self.method == "bc" and not self.demo_steps:
-            raise ValueError("the bc method pre-trains the actor on demonstrations: give demo_steps > 0")
+        if self.method in ("bc", "imitation") and not self.demo_steps:
+            raise ValueError(f"the {self.method} method learns from demonstrations alone: give demo_steps > 0")
 
     @property
     def name(self) -> str:
@@ -82,6 +84,10 @@ class LNSetup:
     register: bool = False
     """Register the final policy as the MLflow model ``prl-ln`` (the pipeline does; sweep points do not)."""
     progress: bool = True
+    dataset_root: Path | None = None
+    """The exported dataset the demonstrations came from: the imitation points train on its episodes."""
+    imitation: ImitationConfig = dataclasses.field(default_factory=ImitationConfig)
+    """The imitation points' policy and training; each point sets its seed."""
 
 
 def point_config(point: LNPoint, ln: LNConfig) -> LNConfig:
@@ -167,6 +173,8 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     from prl.rn_train import feature_stats
 
     task_class(point.task)  # ValueError naming an unknown task before anything runs
+    if point.method == "imitation":
+        return run_imitation_point(point, setup, parent_run_id)
     cfg = point_config(point, setup.ln)
     joint = point.method == "joint"
     demos = None if joint else read_demonstrations(setup.demo_dir, point.task)
@@ -214,11 +222,57 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
         summary = {"point": asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": rows,
                    "pretrain": pre_rows, "checkpoint": str(ckpt), "train_seconds": train_s, "eval_seconds": eval_s,
                    "eval": evaluation}
-        _write_summary(summary, setup.out_dir)
+        write_point_summary(summary, setup.out_dir)
     return summary
 
 
-def _write_summary(summary: dict[str, Any], out_dir: Path) -> None:
+def run_imitation_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -> dict[str, Any]:
+    """An ``imitation`` point of the LN sweep: ``setup.imitation``'s policy trained on the dataset episodes of the
+    K demonstrations that the plan-space points of its seed are pre-trained on (``prl.imitation.drawn_episodes``), then rolled out closed loop in the joint-control environment
+    on the evaluation scenes, all in its own MLflow child run (tagged as the LN points are). Returns its summary as
+    ``run_point`` does: ``rows`` empty (no RL update), ``loss`` the training loss per logged step,
+    ``checkpoint`` the saved policy's directory. ValueError naming a setup without a dataset, or a K beyond it."""
+    import mlflow  # heavy: mlflow
+
+    from envs.joint_env import run_target_policy  # heavy: loads the simulator
+    from prl.imitation import ImitationActor, drawn_episodes, train_imitation
+    from prl.plots import plot_learning_curves
+
+    if setup.dataset_root is None:
+        raise ValueError(f"point {point.name} trains on the dataset's episodes: the sweep needs a dataset_root")
+    episodes = drawn_episodes(setup.dataset_root, point.task, point.demo_steps, point.seed)
+    cfg = dataclasses.replace(setup.imitation, seed=point.seed)
+    out_dir = Path(setup.out_dir) / point.name
+    params = {**{f"imitation.{k}": v for k, v in dataclasses.asdict(cfg).items()},
+              **{f"point.{k}": v for k, v in dataclasses.asdict(point).items()},
+              "dataset_root": str(setup.dataset_root), "episodes": len(episodes),
+              "eval_scenes": len(setup.eval_seeds)}
+    t0 = time.perf_counter()
+    with tracking.child_run(point.name, params=params, parent_run_id=parent_run_id) as run:
+        mlflow.set_tags({"ln_point": point.name, "ln_method": point.method, "task": point.task})
+
+        def log(row: dict[str, float]) -> None:
+            mlflow.log_metrics({f"imitation/{k}": v for k, v in row.items() if k != "step"}, step=int(row["step"]))
+
+        result = train_imitation(setup.dataset_root, cfg, out_dir, episodes, progress=setup.progress, on_log=log)
+        train_s = time.perf_counter() - t0
+        mlflow.log_artifacts(str(result.policy_dir), "policy")
+        fig = plot_learning_curves({cfg.policy: [result.losses]}, "step", "loss", out_dir / f"{point.name}-loss.png",
+                                   title=f"{point.name}: training loss", x_label="gradient step")
+        mlflow.log_figure(fig, f"curves/{point.name}-loss.png")
+        t_eval = time.perf_counter()
+        evaluation = log_evaluation(run_target_policy(point.task, ImitationActor(result.policy_dir),
+                                                      list(setup.eval_seeds), progress=setup.progress))
+        eval_s = time.perf_counter() - t_eval
+        mlflow.log_metrics({"train_seconds": train_s, "eval_seconds": eval_s})
+        summary = {"point": dataclasses.asdict(point), "name": point.name, "run_id": run.info.run_id, "rows": [],
+                   "loss": result.losses, "pretrain": [], "checkpoint": str(result.policy_dir),
+                   "train_seconds": train_s, "eval_seconds": eval_s, "eval": evaluation}
+        write_point_summary(summary, setup.out_dir)
+    return summary
+
+
+def write_point_summary(summary: dict[str, Any], out_dir: Path) -> None:
     """Log the point's summary to its (active) run and write it to ``out_dir/<name>.json`` atomically."""
     import mlflow  # heavy: mlflow
 
@@ -228,11 +282,16 @@ def _write_summary(summary: dict[str, Any], out_dir: Path) -> None:
 
 def evaluate_and_log(point: LNPoint, model: Any, setup: LNSetup) -> dict[str, Any]:
     """``evaluate_policy``, its ``ln/eval/*`` metrics logged to the active run; returns the summary's ``eval``."""
+    return log_evaluation(evaluate_policy(point, model, setup))
+
+
+def log_evaluation(outcomes: Sequence[Any]) -> dict[str, Any]:
+    """The summary's ``eval`` of a final policy's outcomes on the evaluation scenes, its ``ln/eval/*`` metrics
+    logged to the active run."""
     import mlflow  # heavy: mlflow
 
     from prl.stats import wilson_interval
 
-    outcomes = evaluate_policy(point, model, setup)
     k, n = sum(o.success for o in outcomes), len(outcomes)
     lo, hi = wilson_interval(k, n) if n else (0.0, 0.0)
     mlflow.log_metrics({"ln/eval/success_rate": k / max(n, 1), "ln/eval/ci95_low": lo, "ln/eval/ci95_high": hi,
@@ -258,7 +317,7 @@ def reevaluate_point(summary: dict[str, Any], setup: LNSetup) -> dict[str, Any]:
         evaluation = evaluate_and_log(point, model, setup)
         mlflow.set_tag("reevaluated_at_code", code_version())
         summary = {**summary, "eval": evaluation, "eval_before": summary.get("eval_before", summary["eval"])}
-        _write_summary(summary, setup.out_dir)
+        write_point_summary(summary, setup.out_dir)
     return summary
 
 

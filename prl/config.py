@@ -16,6 +16,7 @@ from typing import Any, ClassVar, get_origin, get_type_hints
 
 from prl.constants import EPISODE_FRAMES, REPO_ROOT, TASKS
 from prl.export_schema import VideoSpec
+from prl.imitation import ImitationConfig
 from prl.proposal import ProposalConfig
 from prl.task_registry import known_tasks
 
@@ -42,10 +43,12 @@ PAPER_LN_METHODS: tuple[str, ...] = ("physics", "bc", "joint")
 """The paper's LN methods (its Fig 8), a sweep's default: physics-guided A2C with actor+critic pre-training, the
 same with BC, joint control."""
 
-LN_METHODS: tuple[str, ...] = (*PAPER_LN_METHODS, "physics_gated")
-"""Every LN method: the paper's, and ``physics_gated``, the physics method whose A2C reward is the task's measure
+LN_METHODS: tuple[str, ...] = (*PAPER_LN_METHODS, "physics_gated", "imitation")
+"""Every LN method: the paper's; ``physics_gated``, the physics method whose A2C reward is the task's measure
 only on an episode that meets the task's success rule (0 otherwise; ``flows.train_ln.gated_rewards``). Where the
-rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail."""
+rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail; and
+``imitation``, no RL: LeRobot's ACT trained on the same K demonstrations' joint actions (``prl.imitation``) and
+rolled out in the joint-control environment."""
 
 
 @dataclass(frozen=True)
@@ -305,6 +308,8 @@ class AblationConfig:
 
     LN_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("demo_steps", "pretrain_mode", "seed")
     """LN settings each sweep point sets itself (demo_steps, method, seeds): no flags."""
+    IMITATION_SET_PER_POINT: ClassVar[tuple[str, ...]] = ("seed",)
+    """Imitation settings each sweep point sets itself (its seed): no flags."""
 
     dataset_root: Path | None = None
     """Exported LeRobot dataset root (the pipeline's datasets/...); needed by the plan-space methods (physics, bc), not
@@ -317,9 +322,9 @@ class AblationConfig:
     """Tasks swept, each with demonstrations in the dataset (``prl.task_registry.known_tasks``)."""
     methods: tuple[str, ...] = PAPER_LN_METHODS
     """LN methods swept (``LN_METHODS``): physics (actor+critic pre-training), bc, joint (joint control, no
-    demonstrations); physics_gated only when named."""
+    demonstrations); physics_gated and imitation only when named."""
     demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
-    """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc only for K > 0, joint once."""
+    """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc and imitation only for K > 0, joint once."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of each point."""
     eval_scenes: int = 50
@@ -342,8 +347,12 @@ class AblationConfig:
     """Evaluate the finished points' final policies again (after a task's success criterion changed)."""
     ln: LNConfig = field(default_factory=LNConfig)
     """Every point's LN settings (the paper's; one plan env per point)."""
+    imitation: ImitationConfig = field(default_factory=ImitationConfig)
+    """The imitation points' policy and training (``prl.imitation``; each point sets its seed)."""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.imitation, ImitationConfig):
+            raise ConfigError(f"imitation must be an ImitationConfig, got {self.imitation!r}")
         for name, known in (("tasks", known_tasks()), ("methods", LN_METHODS)):
             values = getattr(self, name)
             if not values:

@@ -105,6 +105,18 @@ def task_episodes(dataset_root: Path | str, task: str | None = None, limit: int 
     return chosen[:limit] if limit is not None else chosen
 
 
+def drawn_episodes(dataset_root: Path | str, task: str, k: int, seed: int) -> list[int]:
+    """The dataset episodes of the ``k`` demonstrations a plan-space LN point of ``seed`` is pre-trained on: the
+    first ``k`` of the same seeded shuffle of the task's episodes as ``prl.ln.Demonstrations.take`` (whose
+    transitions are the task's episodes in the dataset's order, ``prl.ln.task_demonstrations``), so that imitation
+    and the plan-space methods learn from the same demonstrations. ValueError naming ``k`` when there are fewer."""
+    episodes = task_episodes(dataset_root, task)
+    if isinstance(k, bool) or not isinstance(k, int) or not 0 < k <= len(episodes):
+        raise ValueError(f"demo_steps={k!r} must be between 1 and the {len(episodes)} {task} episodes of the dataset "
+                         f"at {str(dataset_root)!r}")
+    return [episodes[i] for i in np.random.default_rng(seed).permutation(len(episodes))[:k]]
+
+
 def policy_config(cfg: ImitationConfig, features: dict[str, dict[str, Any]]) -> Any:
     """lerobot's ``ACTConfig`` of ``cfg`` on the dataset's ``features`` (``meta/info.json``), reading
     ``IMITATION_INPUTS`` and writing ``action``, on the CPU. ValueError naming a missing feature."""

@@ -5,9 +5,10 @@ A summary is one JSON object (sorted keys, indent 1, the curve's and outcomes' f
 decimals, no absolute local path), so that a diff of a re-run is readable and the same summary is the same bytes
 on any machine:
 
-- ``name``: the point's name (``ln-<task>-<method>-k<K>-seed<N>``) and ``point``: ``task``, ``method`` (physics,
-  bc, joint), ``demo_steps`` (K), ``seed``;
-- ``timesteps``: the RL timesteps trained (the file name carries them: a point is also run at other budgets);
+- ``name``: the point's name (``ln-<task>-<method>-k<K>-seed<N>``) and ``point``: ``task``, ``method``
+  (``prl.config.LN_METHODS``), ``demo_steps`` (K), ``seed``;
+- ``timesteps``: the RL timesteps trained (the file name carries them: a point is also run at other budgets; 0
+  for imitation, which trains no RL);
 - ``settings``: everything else that decides the outcome (the LN's and SB3's parameters, the evaluation's scene
   seed and count, the plan environment's frames and points, the PointNet's keyed file name and the dataset's
   recipe, the flows' point procedure);
@@ -20,7 +21,8 @@ on any machine:
   ``success``, ``measure``, ``error``);
 - ``rows``: the training curve, one row per A2C update (``timesteps``, ``frames``, ``window_success_rate``, ...),
   thinned evenly to at most ``MAX_ROWS`` (``thin_rows``: a joint-control run at the plan runs' frames has
-  thousands of updates);
+  thousands of updates); empty for imitation, whose training curve is ``loss`` (``step``, ``loss``, ACT's terms,
+  thinned alike);
 - ``run_id`` (the MLflow run; its store need not exist), and the compute: ``train_seconds``, ``eval_seconds``,
   ``started`` and ``finished`` (ISO 8601, UTC), ``cores`` (the processes the point kept busy: 1 with one plan
   environment, else one per environment plus the main process).
@@ -73,6 +75,8 @@ MAX_ROWS = 400
 """Training-curve rows a summary keeps at most (``thin_rows``); the paper's 3,200 timesteps make 50."""
 ROW_KEYS: tuple[str, ...] = ("timesteps", "frames", "window_success_rate")
 """The keys each training-curve row has at least (what the report draws)."""
+LOSS_KEYS: tuple[str, ...] = ("step", "loss")
+"""The keys each row of an imitation point's ``loss`` (its training curve; it has no RL update) has at least."""
 REFERENCE_PREFIX = "reference-"
 """File names of the reference plans' summaries in the same directory (``prl.ln_reference``: the expert, the prior
 and the RN on the points' evaluation scenes), which are not point summaries."""
@@ -189,6 +193,9 @@ def check_summary(summary: Any, path: Path) -> None:
         _require(outcome, OUTCOME_KEYS, f"eval.outcomes[{i}].", path)
     for i, row in enumerate(summary["rows"]):
         _require(row, dict.fromkeys(ROW_KEYS, (int, float)), f"rows[{i}].", path)
+    _require(summary, {"loss": list} if "loss" in summary else {}, "", path)
+    for i, row in enumerate(summary.get("loss", [])):
+        _require(row, dict.fromkeys(LOSS_KEYS, (int, float)), f"loss[{i}].", path)
     ev = summary["eval"]
     if ev["n"] != len(ev["outcomes"]) or ev["successes"] != sum(o["success"] for o in ev["outcomes"]):
         raise SummaryError(f"{str(path)!r}: eval says {ev['successes']}/{ev['n']} but its outcomes hold "

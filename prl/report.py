@@ -74,9 +74,17 @@ class Group:
     """RL timesteps trained."""
 
     @property
+    def at_paper_budget(self) -> bool:
+        """Trained for the paper's RL budget, or an imitation point (which trains no RL)."""
+        return self.timesteps == PAPER_TIMESTEPS or self.method == "imitation"
+
+    @property
     def label(self) -> str:
-        """``physics K=1280``, ``bc K=1280``, ``joint``; the budget appended unless it is the paper's."""
+        """``physics K=1280``, ``bc K=1280``, ``joint``, ``imitation K=1280 (ACT, joint space)``; the budget appended
+        unless it is the paper's."""
         base = "joint control" if self.method == "joint" else f"{self.method} K={self.demo_steps}"
+        if self.method == "imitation":
+            return f"{base} (ACT, joint space)"
         return base if self.timesteps == PAPER_TIMESTEPS else f"{base}, {self.timesteps:,} steps"
 
 
@@ -117,16 +125,17 @@ class Planned:
         same = (p["task"], p["method"], p["demo_steps"], p["seed"]) == (self.task, self.method, self.demo_steps,
                                                                            self.seed)
         t = int(summary["timesteps"])
-        return same and (t > PAPER_TIMESTEPS if self.equal_frames else t == PAPER_TIMESTEPS)
+        return same and (t > PAPER_TIMESTEPS if self.equal_frames else t == PAPER_TIMESTEPS or p["method"] == "imitation")
 
 
 def planned_points(tasks: Sequence[str] = TASKS, seeds: Sequence[int] = PLAN_SEEDS) -> list[Planned]:
     """The experiment of the issue: per task physics K = 1,280, BC K = 1,280, physics K = 0 and joint control at
-    3,200 timesteps on ``seeds``, joint control at the plan runs' frames on the first seed; the hammer also physics
-    K in ``HAMMER_EXTRA_K``."""
+    3,200 timesteps and imitation of the same K = 1,280 demonstrations on ``seeds``, joint control at the plan runs'
+    frames on the first seed; the hammer also physics K in ``HAMMER_EXTRA_K``."""
     out = []
     for t in tasks:
-        arms = [("physics", PAPER_LN_DEMO_STEPS), ("bc", PAPER_LN_DEMO_STEPS), ("physics", 0), ("joint", 0)]
+        arms = [("physics", PAPER_LN_DEMO_STEPS), ("bc", PAPER_LN_DEMO_STEPS), ("physics", 0), ("joint", 0),
+                ("imitation", PAPER_LN_DEMO_STEPS)]
         arms += [("physics", k) for k in HAMMER_EXTRA_K] if t == "hammer" else []
         out += [Planned(t, v, k, s) for v, k in arms for s in seeds]
         out.append(Planned(t, "joint", 0, seeds[0], equal_frames=True))
@@ -153,7 +162,8 @@ def _ci(estimate: float, lo: float, hi: float) -> str:
 
 def _window(members: Sequence[Mapping[str, Any]]) -> str:
     parts = [f"{s['rows'][0]['window_success_rate']:.2f} -> {s['rows'][-1]['window_success_rate']:.2f}"
-             if s["rows"] else "no update" for s in members]
+             if s["rows"] else f"loss {s['loss'][0]['loss']:.3f} -> {s['loss'][-1]['loss']:.3f}"
+             if s.get("loss") else "no update" for s in members]
     return ", ".join(parts)
 
 
@@ -242,7 +252,7 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
     move a paper task's number."""
     by_method: dict[tuple[int, str, int, bool], dict[str, list[list[float]]]] = {}
     for g, members in groups.items():
-        if g.timesteps == PAPER_TIMESTEPS:
+        if g.at_paper_budget:
             key = (g.method_index, g.method, g.demo_steps, g.task not in TASKS)
             by_method.setdefault(key, {})[g.task] = _runs(members)
     lines = ["| method | tasks | IQM over all seeds (95% stratified-bootstrap CI) |", "|---|---|---|"]
@@ -253,19 +263,21 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
 
 
 def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
-    """P(physics K = 1,280 > physics K = 0) and P(physics K = 1,280 > BC K = 1,280), per task that has either pair and
-    over the paper's tasks that have both, at the paper's budget."""
+    """P(physics K = 1,280 > physics K = 0), P(physics K = 1,280 > BC K = 1,280) and, where it ran, P(physics K =
+    1,280 > imitation K = 1,280), per task that has either pair and over the paper's tasks that have both, at the
+    paper's budget."""
     def runs_of(method: str, k: int) -> dict[str, list[list[float]]]:
         return {g.task: _runs(m) for g, m in groups.items()
-                if g.method == method and g.demo_steps == k and g.timesteps == PAPER_TIMESTEPS}
+                if g.method == method and g.demo_steps == k and g.at_paper_budget}
 
     ref = runs_of("physics", PAPER_LN_DEMO_STEPS)
-    others = (runs_of("physics", 0), runs_of("bc", PAPER_LN_DEMO_STEPS))
+    compared = [(f"P(physics K={PAPER_LN_DEMO_STEPS} > {m} K={k})", runs_of(m, k))
+                for m, k in (("physics", 0), ("bc", PAPER_LN_DEMO_STEPS), ("imitation", PAPER_LN_DEMO_STEPS))]
+    compared = [(name, runs) for i, (name, runs) in enumerate(compared) if i < 2 or runs]
+    others = [runs for _, runs in compared]
     tasks = [t for t in dict.fromkeys(g.task for g in groups) if t in ref and any(t in o for o in others)]
     lines = [f"| comparison | {' | '.join(tasks)} | paper tasks with both |", "|---|" + "---|" * (len(tasks) + 1)]
-    names = (f"P(physics K={PAPER_LN_DEMO_STEPS} > physics K=0)",
-             f"P(physics K={PAPER_LN_DEMO_STEPS} > bc K={PAPER_LN_DEMO_STEPS})")
-    for name, other in zip(names, others, strict=True):
+    for name, other in compared:
         both = [t for t in tasks if t in ref and t in other]
         cells = [_poi_cell({t: ref[t]}, {t: other[t]}) if t in both else "-" for t in tasks]
         paper = [t for t in both if t in TASKS]
@@ -328,15 +340,18 @@ def elapsed_hours(summaries: Sequence[Mapping[str, Any]]) -> float:
 
 
 def compute_table(summaries: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """Per task and in all: points, their wall time and core-hours (``cores`` x start-finish), train and evaluation
-    hours; then the elapsed time and the dates."""
+    """Per task, per method and in all: points, their wall time and core-hours (``cores`` x start-finish), train and
+    evaluation hours; then the elapsed time and the dates."""
     rows: dict[str, list[Mapping[str, Any]]] = {}
+    methods: dict[str, list[Mapping[str, Any]]] = {}
     for s in sorted(summaries.values(), key=lambda s: group_of(s)):
         rows.setdefault(s["point"]["task"], []).append(s)
+    for s in sorted(summaries.values(), key=lambda s: (group_of(s).method_index, group_of(s))):
+        methods.setdefault(f"method: {group_of(s).method}", []).append(s)
     everything = [s for members in rows.values() for s in members]
-    lines = ["| task | points | wall time, summed over points (h) | core-hours | training (h) | evaluation (h) |",
+    lines = ["| task or method | points | wall time, summed over points (h) | core-hours | training (h) | evaluation (h) |",
              "|---|---|---|---|---|---|"]
-    for name, members in [*rows.items(), ("all", everything)]:
+    for name, members in [*rows.items(), *methods.items(), ("all", everything)]:
         wall = sum(_hours(s) for s in members)
         cores = sum(s["cores"] * _hours(s) for s in members)
         train = sum(s["train_seconds"] for s in members) / 3600.0
@@ -409,11 +424,14 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
                for t in dict.fromkeys(p.task for p in missing if p.equal_frames)]
     seeds, tail = ",".join(map(str, PLAN_SEEDS)), f"--results-dir {results_rel}"
     lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
-                  + "--pointnet-path ...`, which joint control alone does not need, and an `--output-dir` of each "
+                  + "--pointnet-path ...`, which joint control alone does not need; imitation reads its "
+                  + "`observation.environment_state`, which a dataset exported before it lacks; an `--output-dir` of each "
                   + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
               "", "```",
               f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods physics,bc,joint --demo-steps "
               + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods imitation --demo-steps "
+              + f"{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
               "python -m flows.ablation $D --tasks hammer --methods physics --demo-steps "
               + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
               f"python -m flows.ablation --tasks <task> --methods joint --seeds {PLAN_SEEDS[0]} "
@@ -436,7 +454,7 @@ def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: P
                if g.method == "joint" or (g.method in ("physics", "physics_gated")
                                            and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
                                            and g.timesteps == PAPER_TIMESTEPS)}
-        bottom = {g.label: rows for g, rows in mine.items() if g.method != "joint"}
+        bottom = {g.label: rows for g, rows in mine.items() if g.method not in ("joint", "imitation")}
         panels = [("physics-guided (K = 1,280 and K = 0) vs joint control", top),
                   ("demonstration steps K, and BC", bottom)]
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):

@@ -61,6 +61,13 @@ OUTCOME_METHOD_FILES: dict[str, tuple[str, ...]] = {
 """Per method family (``method_family``), the files that decide its points' outcomes beyond ``OUTCOME_SHARED_FILES``:
 editing the joint-control environment leaves every plan-space point current, and the reverse."""
 
+OUTCOME_OWN_FILES: dict[str, tuple[str, ...]] = {
+    # imitation: the LeRobot policy's training and rollout (prl.imitation), and the export's readers it trains from
+    "imitation": ("prl/imitation.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py"),
+}
+"""Per method, files that decide its points' outcomes beyond its family's (``OUTCOME_METHOD_FILES``): editing the
+imitation policy's training leaves every other point current."""
+
 JOINT_METHODS: frozenset[str] = frozenset({"joint", "joint_bc", "imitation"})
 """Methods that act in joint space (``envs.joint_env``); every other method (``physics``, ``bc``, ``physics_gated``,
 the reference plans) acts in the plan space."""
@@ -79,13 +86,14 @@ def method_family(method: str) -> str:
 def outcome_files(task: str, method: str = "physics") -> tuple[str, ...]:
     """The files (relative to the repository root, sorted) whose contents decide an LN point's outcome on ``task``
     with ``method``: ``envs/tasks/<task>.py`` and the task modules it imports (a variant's base task),
-    ``OUTCOME_SHARED_FILES``, the method family's ``OUTCOME_METHOD_FILES`` and ``assets/``
+    ``OUTCOME_SHARED_FILES``, the method family's ``OUTCOME_METHOD_FILES``, the method's ``OUTCOME_OWN_FILES`` and
+    ``assets/``
     (``OUTCOME_ASSET_SUFFIXES``). An explicit list: a module added later (another task, a variant of one) changes no
     task's files until one of these imports it. FileNotFoundError naming a task without a module."""
     own = task_module(task)
     assets = [p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "assets").rglob("*")
               if p.is_file() and p.suffix in OUTCOME_ASSET_SUFFIXES]
-    family = OUTCOME_METHOD_FILES[method_family(method)]
+    family = (*OUTCOME_METHOD_FILES[method_family(method)], *OUTCOME_OWN_FILES.get(method, ()))
     return tuple(sorted({*_task_modules(own), *OUTCOME_SHARED_FILES, *family, *assets}))
 
 

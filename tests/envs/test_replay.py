@@ -4,6 +4,7 @@ LeRobot policy (ACT) trains on the dataset offline and acts in that environment 
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +62,27 @@ def test_unknown_task_in_a_replay_is_named(dataset: Path) -> None:
         replay_dataset(dataset, per_task=1, tasks=["sweep"], progress=False)
 
 
+def test_imitation_draws_the_plan_space_points_demonstrations(tmp_path: Path) -> None:
+    """``drawn_episodes`` names the dataset episodes whose transitions ``Demonstrations.take`` draws for the same K
+    and seed (the task's episodes in the dataset's order), here told apart by their measures."""
+    import json
+
+    from prl.export_schema import SCENES_FILE
+    from prl.imitation import drawn_episodes
+    from prl.ln import Demonstrations
+
+    tasks = ["hammer", "sweep", "hammer", "hammer", "sweep", "hammer", "hammer"]
+    rows = [{"episode_index": i, "task": t, "seed": 100 + i, "outcome": {"m": float(i)}} for i, t in enumerate(tasks)]
+    (tmp_path / SCENES_FILE).parent.mkdir(parents=True)
+    (tmp_path / SCENES_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    hammer = [i for i, t in enumerate(tasks) if t == "hammer"]
+    demos = Demonstrations(np.zeros((5, 2), np.float32), np.zeros((5, 6), np.int64), np.array(hammer, np.float32))
+    for k, seed in ((3, 0), (5, 1), (1, 7)):
+        assert [float(i) for i in drawn_episodes(tmp_path, "hammer", k, seed)] == list(demos.take(k, seed).reward)
+    with pytest.raises(ValueError, match="demo_steps=6 must be between 1 and the 5 hammer episodes"):
+        drawn_episodes(tmp_path, "hammer", 6, 0)
+
+
 def test_imitation_config_names_bad_values() -> None:
     from prl.imitation import ImitationConfig, policy_config
 
@@ -77,25 +99,47 @@ def test_imitation_config_names_bad_values() -> None:
 
 @pytest.mark.sim
 @pytest.mark.train
-def test_act_trains_on_the_dataset_and_acts_in_the_joint_env(dataset: Path, tmp_path: Path) -> None:
-    from envs.joint_env import run_target_policy
-    from prl.imitation import ImitationActor, ImitationConfig, task_episodes, train_imitation
+def test_act_trains_on_the_dataset_and_acts_in_the_joint_env_as_an_ln_point(dataset: Path, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """An imitation point of the sweep (``flows.train_ln.run_imitation_point``): ACT trained on the drawn
+    demonstrations' episodes, saved in lerobot's files (no pickle), rolled out in the joint-control env on an
+    evaluation scene, its own MLflow run, and a committed summary that reloads (timesteps 0, its loss kept)."""
+    import mlflow
 
+    from flows.ln_results import committed_summary
+    from flows.train_ln import LNPoint, LNSetup, run_imitation_point
+    from prl import tracking
+    from prl.config import LNConfig
+    from prl.imitation import ImitationActor, ImitationConfig, drawn_episodes
+    from prl.ln_summary import read_summary, write_summary
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    tracking.configure("prl")
     cfg = ImitationConfig(steps=4, batch_size=8, dim_model=64, dim_feedforward=128, n_heads=4, log_every=2)
-    episodes = task_episodes(dataset, "hammer")
-    assert episodes == [0, 1]
-    result = train_imitation(dataset, cfg, tmp_path / "im", episodes, progress=False)
-    assert [r["step"] for r in result.losses] == [2.0, 4.0] and all(np.isfinite(r["loss"]) for r in result.losses)
-    assert result.frames == 2 * 150
-    saved = sorted(p.name for p in result.policy_dir.iterdir())
+    setup = LNSetup(demo_dir=tmp_path / "demos", pointnet_path=None, out_dir=tmp_path / "points",
+                    eval_seeds=(10_000_000,), ln=LNConfig(), progress=False, dataset_root=dataset, imitation=cfg)
+    point = LNPoint("hammer", "imitation", 2, 1)
+    assert sorted(drawn_episodes(dataset, "hammer", 2, 1)) == [0, 1]
+    summary = run_imitation_point(point, setup)
+    assert [r["step"] for r in summary["loss"]] == [2.0, 4.0] and all(np.isfinite(r["loss"]) for r in summary["loss"])
+    saved = sorted(p.name for p in Path(summary["checkpoint"]).iterdir())
     assert "model.safetensors" in saved and "config.json" in saved and not any(p.endswith(".pkl") for p in saved)
-    actor = ImitationActor(result.policy_dir)
+    (outcome,) = summary["eval"]["outcomes"]
+    assert outcome["seed"] == 10_000_000 and outcome["error"] == "" and np.isfinite(outcome["measure"])
+    run = mlflow.get_run(summary["run_id"])
+    assert run.data.tags["ln_method"] == "imitation" and run.data.params["episodes"] == "2"
+    assert run.data.params["imitation.seed"] == "1"  # the point's seed, not the config's
+    record = {"point": summary["point"], "timesteps": 0, "settings": {}, "code_version": "0" * 16,
+              "dataset_digest": None}
+    path = write_summary(tmp_path / "ln", committed_summary(summary, record, "t0", "t1", 1))
+    assert path.name == "ln-hammer-imitation-k2-seed1-t0.json" and read_summary(path)["loss"][1]["step"] == 4.0
+    actor = ImitationActor(summary["checkpoint"])
     targets = actor(np.zeros(60), np.zeros(52))
     assert targets.shape == (30,) and np.all(np.isfinite(targets))
-    (outcome,) = run_target_policy("hammer", actor, [10_000_000], progress=False)
-    assert outcome.error == "" and isinstance(outcome.success, bool) and np.isfinite(outcome.measure)
     with pytest.raises(FileNotFoundError, match="no trained policy"):
         ImitationActor(tmp_path / "nowhere")
+    with pytest.raises(ValueError, match="needs a dataset_root"):
+        run_imitation_point(point, dataclasses.replace(setup, dataset_root=None))
 
 
 @pytest.mark.sim

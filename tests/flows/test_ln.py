@@ -206,6 +206,10 @@ def test_ln_points_and_sweeps_name_bad_input() -> None:
     assert [p.name for p in points[:3]] == ["ln-hammer-physics-k0-seed0", "ln-hammer-physics-k0-seed1",
                                             "ln-hammer-physics-k0-seed2"]
     assert len(points) == 6 + 3 + 3  # physics K=0 and K=1280, bc K=1280, joint once; 3 seeds each
+    with pytest.raises(ValueError, match="the imitation method learns from demonstrations alone"):
+        LNPoint("hammer", "imitation", 0)
+    imitation = sweep_points(["hammer"], ["imitation"], [0, 1280], [0, 1])
+    assert [p.name for p in imitation] == ["ln-hammer-imitation-k1280-seed0", "ln-hammer-imitation-k1280-seed1"]
 
 
 def test_the_sweep_progress_counts_only_each_points_latest_run() -> None:

@@ -96,6 +96,31 @@ def test_point_settings_name_what_decides_the_outcome(tmp_path: Path) -> None:
     joint = point_settings(LNPoint("hammer", "joint", 0, 0), setup, 0)
     assert not {"pointnet", "dataset", "n_points", "n_frames"} & set(joint)  # joint control uses neither
     assert not [s for s in map(str, bc.values()) if s.startswith("/")]  # no local path
+    imitation = point_settings(LNPoint("hammer", "imitation", 1280, 2), setup, 0, recipe)
+    assert imitation["imitation.seed"] == 2 and imitation["imitation.steps"] == setup.imitation.steps
+    assert imitation["dataset"] == recipe and not any(k.startswith(("ln.", "sb3.")) for k in imitation)
+    assert not {"pointnet", "n_points", "n_frames"} & set(imitation)  # it never runs the plan environment
+
+
+def test_an_imitation_summary_keeps_its_loss_and_names_a_malformed_one(tmp_path: Path) -> None:
+    """An imitation point trains no RL: no curve rows, timesteps 0, its loss rows kept (rounded, thinned)."""
+    from flows.ln_results import committed_summary
+    from prl.ln_summary import write_summary
+
+    record = record_of(read_summary(ONE))
+    record["point"] = {"task": "hammer", "method": "imitation", "demo_steps": 1280, "seed": 0}
+    record["timesteps"] = 0
+    ran = {**run_summary(), "point": record["point"], "name": "ln-hammer-imitation-k1280-seed0", "rows": [],
+           "loss": [{"step": 10.0, "loss": 1.23456, "l1_loss": 0.5}, {"step": 20.0, "loss": 0.654321}]}
+    path = write_summary(tmp_path, committed_summary(ran, record, "2026-12-07T01:00:00+00:00",
+                                                     "2026-12-07T01:30:00+00:00", 1))
+    assert path.name == "ln-hammer-imitation-k1280-seed0-t0.json"
+    back = read_summary(path)
+    assert back["rows"] == [] and back["loss"][0] == {"step": 10.0, "loss": 1.2346, "l1_loss": 0.5}
+    bad = {**back, "loss": [{"step": 10.0}]}
+    path.write_text(json.dumps(bad))
+    with pytest.raises(SummaryError, match="loss\\[0\\].loss"):
+        read_summary(path)
 
 
 def test_the_dataset_digest_is_of_the_datasets_demonstrations(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from prl.config import (
     make_ablation_config,
     make_config,
 )
+from prl.imitation import ImitationConfig
 
 
 def test_quick_and_paper_profiles() -> None:
@@ -204,11 +205,13 @@ def test_every_config_field_has_its_flag_by_its_name() -> None:
 
     for cls, parser, exclude in ((PipelineConfig, full_pipeline.cli_parser(), full_pipeline.CLI_EXCLUDE),
                                  (AblationConfig, ablation.cli_parser(), ablation.CLI_EXCLUDE)):
-        names = [f.name for f in dataclasses.fields(cls) if f.name != "ln"]
+        names = [f.name for f in dataclasses.fields(cls) if f.name not in ("ln", "imitation")]
         names += [f"ln.{f.name}" for f in dataclasses.fields(LNConfig)]
+        names += [f"imitation.{f.name}" for f in dataclasses.fields(ImitationConfig)] if cls is AblationConfig else []
         flags = _flags(parser)
-        # the LN settings each point sets itself have none; the profile's flag is written by hand
+        # the LN and imitation settings each point sets itself have none; the profile's flag is written by hand
         no_flag = {f"ln.{n}" for n in cls.LN_SET_PER_POINT}
+        no_flag |= {f"imitation.{n}" for n in getattr(cls, "IMITATION_SET_PER_POINT", ())}
         assert set(exclude) - no_flag <= {"profile"}
         for name in names:
             assert (_flag(name) in flags) != (name in no_flag), (cls.__name__, name)

@@ -57,8 +57,9 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
     assert "| P(physics K=1280 > physics K=0) | 1.00 (" in text
     assert "| P(physics K=1280 > bc K=1280) | 0.75 (" in text  # 1.0 > 0.75, 0.75 = 0.75: (1 + 0.5) / 2
     assert "| all | 5 | 2.5 | 2.5 | 2.4 | 0.1 |" in text  # 5 points of 30 min on one core; 1,700 s + 100 s each
+    assert "| method: physics | 3 | 1.5 | 1.5 |" in text and "| method: joint | 1 | 0.5 | 0.5 |" in text
     assert "at least one point was running during 1.5 h" in text  # 00:00-00:30, 01:00-01:30, 02:00-02:30
-    assert "5 of the 61 planned points are done." in text
+    assert "5 of the 73 planned points are done." in text
     assert "| hammer | physics K=1280: 2; bc K=1280: 1,2; physics K=0: 1,2; joint control: 1,2; " in text
     assert "| sweep | physics K=1280: 0,1,2; bc K=1280: 0,1,2;" in text
     assert "![hammer: Fig 8 against timesteps](results/fig8_hammer_timesteps.png)" in text
@@ -69,7 +70,7 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
 
 def test_the_plan_and_what_is_missing() -> None:
     plan = planned_points()
-    assert len(plan) == 4 * (4 * 3 + 1) + 3 * 3  # four arms x 3 seeds + equal frames per task; hammer 3 more K
+    assert len(plan) == 4 * (5 * 3 + 1) + 3 * 3  # five arms x 3 seeds + equal frames per task; hammer 3 more K
     summaries = read_summaries(FIXTURES)
     missing = missing_points(summaries, plan)
     assert len(plan) - len(missing) == 5
@@ -211,6 +212,27 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
     # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last column is the hammer's
     assert poi[2] == "| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) |"
     assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - |"
+    assert len(poi) == 4  # no imitation point: no row for it
+
+
+def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
+    """An imitation point (no RL: timesteps 0) counts at the paper's budget, is named as joint-space ACT, shows its
+    training loss for a curve, is planned, enters P(physics K=1280 > imitation K=1280) and stays out of Fig 8."""
+    from prl.report import Group, Planned, _window, across_tasks_table, improvement_table
+
+    def points(*scores: float) -> list[dict]:
+        return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
+
+    imitation = Group(0, "hammer", 4, "imitation", 1280, 0)
+    groups = {Group(0, "hammer", 0, "physics", 1280, 3200): points(1.0, 1.0, 1.0), imitation: points(0.0, 1.0, 0.0)}
+    assert imitation.label == "imitation K=1280 (ACT, joint space)" and imitation.at_paper_budget
+    assert "| imitation K=1280 (ACT, joint space) | hammer | 0.33 (" in "\n".join(across_tasks_table(groups))
+    # physics 1.0 beats imitation's 0.0 twice and ties its 1.0 once, per pair of seeds: (2 + 0.5) / 3
+    assert improvement_table(groups)[4].startswith("| P(physics K=1280 > imitation K=1280) | 0.83 (")
+    loss = {"rows": [], "loss": [{"step": 10, "loss": 2.5}, {"step": 20, "loss": 0.25}]}
+    assert _window([loss]) == "loss 2.500 -> 0.250"
+    summary = {"point": {"task": "hammer", "method": "imitation", "demo_steps": 1280, "seed": 1}, "timesteps": 0}
+    assert Planned("hammer", "imitation", 1280, 1).done_by(summary)
 
 
 def test_the_reward_table_counts_failures_paid_like_a_success() -> None:

@@ -13,6 +13,7 @@ from prl.constants import REPO_ROOT, TASKS
 from prl.task_registry import known_tasks
 from prl.version import (
     OUTCOME_METHOD_FILES,
+    OUTCOME_OWN_FILES,
     OUTCOME_SHARED_FILES,
     changed_files,
     method_family,
@@ -33,6 +34,7 @@ the demonstrations and of a scene), which a joint-space point never calls."""
 def tree(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A checkout's layout with placeholder contents, which ``prl.version`` takes for the repository."""
     for rel in [*OUTCOME_SHARED_FILES, *(f for files in OUTCOME_METHOD_FILES.values() for f in files),
+                *(f for files in OUTCOME_OWN_FILES.values() for f in files),
                 *(f"envs/tasks/{t}.py" for t in TASKS), "assets/plb.yaml",
                 "assets/hand/prl_hand.urdf", "README.md", "docs/results.md", "flows/ablation.py",
                 "envs/synthesis.py", "tests/prl/test_x.py"]:
@@ -103,8 +105,9 @@ def test_a_new_asset_changes_every_task_and_an_unknown_task_is_named(tree: Path)
 
 
 def test_each_methods_own_files_change_its_versions_only(tree: Path) -> None:
-    """The joint-control environment decides the joint-space methods' outcomes alone, the plan environment and the
-    export's readers the plan-space methods' alone; the shared executor both."""
+    """The joint-control environment decides the joint-space methods' outcomes alone, the plan environment the
+    plan-space methods' alone, the export's readers theirs and imitation's (it trains from an export), the imitation
+    policy's training imitation's alone; the shared executor every one."""
     def all_versions() -> dict[tuple[str, str], str]:
         return {(t, m): outcome_version(t, m) for t in TASKS for m in ("physics", "bc", "reference", "joint",
                                                                         "joint_bc", "imitation")}
@@ -118,8 +121,11 @@ def test_each_methods_own_files_change_its_versions_only(tree: Path) -> None:
         before = all_versions()
         (tree / rel).write_text(f"# {rel}, edited\n")
         after = all_versions()
-        assert {k for k in before if before[k] != after[k]} == {(t, m) for t in TASKS
-                                                                for m in ("physics", "bc", "reference")}
+        assert {k for k in before if before[k] != after[k]} == {
+            (t, m) for t in TASKS for m in ("physics", "bc", "reference", *(("imitation",) if "export" in rel else ()))}
+    before = all_versions()
+    (tree / "prl/imitation.py").write_text("# the policy's training, edited\n")
+    assert {k for k, v in all_versions().items() if v != before[k]} == {(t, "imitation") for t in TASKS}
     before = all_versions()
     (tree / "envs/executor.py").write_text("# shared\n")
     assert all(v != before[k] for k, v in all_versions().items())
@@ -214,7 +220,7 @@ def _imports(rel: str) -> set[str]:
     return found
 
 
-@pytest.mark.parametrize("method", ["physics", "joint"])
+@pytest.mark.parametrize("method", ["physics", "joint", "imitation"])
 @pytest.mark.parametrize("task", known_tasks())
 def test_the_list_holds_everything_its_modules_import(task: str, method: str) -> None:
     """Every project module the listed ones import, at any depth, is listed too, or left out on purpose (another
@@ -231,7 +237,7 @@ def test_the_list_holds_everything_its_modules_import(task: str, method: str) ->
         for dep in _imports(rel):
             if dep in listed:
                 todo.append(dep)
-            elif dep not in LEFT_OUT and not (method == "joint" and dep in LEFT_OUT_JOINT) and not (dep in others and rel == "envs/tasks/__init__.py"):
+            elif dep not in LEFT_OUT and not (method != "physics" and dep in LEFT_OUT_JOINT) and not (dep in others and rel == "envs/tasks/__init__.py"):
                 unlisted.add(f"{dep} (imported by {rel})")
     assert sorted(unlisted) == []
     assert not any(f in listed for f in others)
