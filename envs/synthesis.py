@@ -467,10 +467,10 @@ def task_attempts(out_dir: Path, task: str) -> list[dict]:
 
 
 def yield_report(out_dir: Path, task: str, n_frames: int = EPISODE_FRAMES) -> dict[str, float]:
-    """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised
-    (``errors``), that the executor ended itself (``faults/<fault>``), that ended early as decided failures
-    (``decided``) and that succeeded but not by their replay (``not_replayed``, ``ShardSpec.replay_check``), and the plan-episode physics frames stepped per attempt (``n_frames`` each, but those ended
-    early), from the attempt logs."""
+    """Yield (successes / attempts) overall and per plan dimension choice, attempts that raised (``errors``), that
+    the executor ended itself (``faults/<fault>``), that ended early as decided failures (``decided``) and that
+    succeeded but not by their replay (``not_replayed``, ``ShardSpec.replay_check``), and the plan-episode physics
+    frames stepped per attempt (``n_frames`` each, but those ended early), from the attempt logs."""
     rows = task_attempts(out_dir, task)
     report: dict[str, float] = {"attempts": float(len(rows)), "successes": float(sum(r["success"] for r in rows))}
     report["yield"] = report["successes"] / report["attempts"] if rows else 0.0

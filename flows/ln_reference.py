@@ -2,17 +2,19 @@
 
 ``python -m flows.ln_reference --tasks hammer,sweep,unscrew,tweeze [--eval-seed 0] [--eval-scenes 50]
 [--results-dir docs/results/ln] [--rn-path P] [--extend]``: per task, on the LN points' evaluation scenes
-(``envs.trials.eval_scene_seeds(eval_seed, eval_scenes)``, as the sweep's ``--eval-seed`` and ``--eval-scenes``), the
-task's expert plan and a plan sampled from its prior per scene (seeded as the RN evaluation's: the eval seed plus
-``flows.evaluate_rn.PRIOR_SEED_OFFSET``) and, with ``--rn-path``, the RN's argmax plan (``flows.evaluate_rn``: the PointNet beside the RN with the digest it recorded) are executed, and on a mixed variant
-the family oracle, each family's expert and the best fixed plan the variant's search found
-(``envs.variant_search.best_fixed_plan``, from the committed record), and ``reference-<task>.json`` is written into the results directory (``prl.ln_reference``); ``python -m
-flows.report`` shows them next to the points. A reference whose task, settings and code version equal today's is
-kept (printed); else it is computed again and replaced, saying why. Run it with the same ``--rn-path`` to keep an
-RN's rows: without one, the settings differ and the reference is replaced by one without the RN. ``--extend`` keeps
-a committed reference that is current but for its best fixed plan (none yet, or the search's record now names
-another) and runs only that plan, so its RN rows stay without the RN at hand. An unknown task
-or a missing RN file is an error before anything runs (exit status 2). No MLflow run: the files are the record.
+(``envs.trials.eval_scene_seeds(eval_seed, eval_scenes)``, as the sweep's ``--eval-seed`` and ``--eval-scenes``),
+the task's expert plan and a plan sampled from its prior per scene (seeded as the RN evaluation's: the eval seed
+plus ``flows.evaluate_rn.PRIOR_SEED_OFFSET``), with ``--rn-path`` the RN's argmax plan (``flows.evaluate_rn``: the
+PointNet beside the RN with the digest it recorded) and, on a mixed variant, the family oracle, each family's
+expert and the best fixed plan the variant's search found (``envs.variant_search.best_fixed_plan``, from the
+committed record) are executed, and ``reference-<task>.json`` is written into the results directory
+(``prl.ln_reference``); ``python -m flows.report`` shows them next to the points. A reference whose task, settings
+and code version equal today's is kept (printed); else it is computed again and replaced, saying why. Run it with
+the same ``--rn-path`` to keep an RN's rows: without one, the settings differ and the reference is replaced by one
+without the RN. ``--extend`` keeps a committed reference that is current but for its best fixed plan (none yet, or
+the search's record now names another) and runs only that plan, so its RN rows stay without the RN at hand. An
+unknown task or a missing RN file is an error before anything runs (exit status 2). No MLflow run: the files are
+the record.
 """
 
 from __future__ import annotations

@@ -228,10 +228,11 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
 
 def run_imitation_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -> dict[str, Any]:
     """An ``imitation`` point of the LN sweep: ``setup.imitation``'s policy trained on the dataset episodes of the
-    K demonstrations that the plan-space points of its seed are pre-trained on (``prl.imitation.drawn_episodes``), then rolled out closed loop in the joint-control environment
-    on the evaluation scenes, all in its own MLflow child run (tagged as the LN points are). Returns its summary as
-    ``run_point`` does: ``rows`` empty (no RL update), ``loss`` the training loss per logged step,
-    ``checkpoint`` the saved policy's directory. ValueError naming a setup without a dataset, or a K beyond it."""
+    K demonstrations that the plan-space points of its seed are pre-trained on (``prl.imitation.drawn_episodes``),
+    then rolled out closed loop in the joint-control environment on the evaluation scenes, all in its own MLflow
+    child run (tagged as the LN points are). Returns its summary as ``run_point`` does: ``rows`` empty (no RL
+    update), ``loss`` the training loss per logged step, ``checkpoint`` the saved policy's directory. ValueError
+    naming a setup without a dataset, or a K beyond it."""
     import mlflow  # heavy: mlflow
 
     from envs.joint_env import run_target_policy  # heavy: loads the simulator
