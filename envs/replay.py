@@ -67,24 +67,76 @@ def episode_columns(root: Path | str, names: Sequence[str] = ("action", "observa
     return cols, np.concatenate([[0], np.cumsum(lengths)])
 
 
-def replay_episode(env: Any, seed: int, actions: np.ndarray, states: np.ndarray, stages: np.ndarray
-                   ) -> tuple[bool, float, float]:
-    """(success, measure, largest joint deviation) of ``actions`` (T, 30), one a step, on the scene of
-    ``seed`` in ``env`` (a ``JointControlEnv`` with T steps), against the recorded ``states`` (T, 60)."""
-    env.reset(options={"scene_seed": int(seed)})
-    deviation, info, last_stage = 0.0, {}, -1
+def replay_transitions(env: Any, seed: int, actions: np.ndarray, stages: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """``actions`` (T, 30 joint targets), one a step, replayed open loop in ``env`` (a ``JointControlEnv`` with T
+    steps) on the scene of ``seed``: the observations (T + 1: the reset's, then one after each step), the rewards
+    (T) and the last step's info. ``stages`` (T,) tells the task of each recorded stage as it starts, as when the
+    demo was recorded; None: none, as in the environment's own episodes. RuntimeError naming a step's error."""
+    first, _ = env.reset(options={"scene_seed": int(seed)})
+    observations, rewards, info, last_stage = [first], [], {}, -1
     for k in range(len(actions)):
-        if int(stages[k]) != last_stage:
+        if stages is not None and int(stages[k]) != last_stage:
             last_stage = int(stages[k])
             env.on_stage_start(STAGES[last_stage])
-        obs, _, done, _, info = env.step_target(actions[k])
-        if k + 1 < len(actions):
-            deviation = max(deviation, float(np.max(np.abs(obs[:N_JOINTS] - states[k + 1, :N_JOINTS]))))
+        obs, reward, done, _, info = env.step_target(actions[k])
+        observations.append(obs)
+        rewards.append(reward)
         if done:
             break
     if info.get("error"):
         raise RuntimeError(info["error"])
+    return np.asarray(observations), np.asarray(rewards, np.float64), info
+
+
+def replay_episode(env: Any, seed: int, actions: np.ndarray, states: np.ndarray, stages: np.ndarray
+                   ) -> tuple[bool, float, float]:
+    """(success, measure, largest joint deviation) of ``actions`` (T, 30), one a step, on the scene of
+    ``seed`` in ``env`` (a ``JointControlEnv`` with T steps), against the recorded ``states`` (T, 60): the state
+    after step k against the recorded row k + 1."""
+    observations, _, info = replay_transitions(env, seed, actions, stages)
+    n = min(len(observations), len(states))
+    deviation = float(np.max(np.abs(observations[1:n, :N_JOINTS] - states[1:n, :N_JOINTS]))) if n > 1 else 0.0
     return bool(info["success"]), float(info["measure"]), deviation
+
+
+def replayed_demonstrations(root: Path | str, task: str, episodes: Sequence[int], gamma: float,
+                            progress: bool = False) -> Any:
+    """``prl.joint_bc.JointDemonstrations`` of ``episodes`` (indices of the dataset at ``root``, all of ``task``):
+    each episode's ``action`` rows replayed open loop in the task's joint-control environment on its scene, with
+    no stage announced (as the environment's own episodes), giving the observation before each step, the action
+    that step's target maps from and the discounted return from the step on (``gamma``). ValueError naming an
+    episode of another task."""
+    from envs.joint_env import JointControlEnv  # heavy: loads the simulator
+    from prl.joint_bc import JointDemonstrations, actions_of_targets, returns_to_go
+
+    scenes = read_scenes(root)
+    other = [i for i in episodes if scenes[i]["task"] != task]
+    if other:
+        raise ValueError(f"episode {other[0]} of the dataset at {str(root)!r} is of task "
+                         f"{scenes[other[0]]['task']!r}, not {task!r}")
+    cols, starts = episode_columns(root, ("action",))
+    obs, act, ret = [], [], []
+    env: Any = None
+    try:
+        for i in tqdm(episodes, desc=f"{task} demonstrations replayed", unit="episode", disable=not progress):
+            lo, hi = int(starts[i]), int(starts[i + 1])
+            if env is None or env.steps != hi - lo:
+                if env is not None:
+                    env.close()
+                env = JointControlEnv(task, steps=hi - lo)
+                low, high = env.target_of(-np.ones(N_JOINTS)), env.target_of(np.ones(N_JOINTS))
+            targets = cols["action"][lo:hi]
+            observations, rewards, _ = replay_transitions(env, scenes[i]["seed"], targets)
+            steps = len(rewards)
+            obs.append(observations[:steps])
+            act.append(actions_of_targets(targets[:steps], low, high))
+            ret.append(returns_to_go(rewards, gamma))
+    finally:
+        if env is not None:
+            env.close()
+    return JointDemonstrations(np.concatenate(obs).astype(np.float32), np.concatenate(act).astype(np.float32),
+                               np.concatenate(ret).astype(np.float32))
 
 
 def demo_replays(env: Any, demo: Any) -> bool:

@@ -2,7 +2,7 @@
 (neither for a sweep of ``--methods joint`` alone).
 
 Points = tasks x methods x demonstration steps x seeds (``flows.train_ln.LNPoint``: physics-guided A2C for each
-K, BC and imitation for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
+K, BC, joint_bc and imitation for each K > 0, joint control once), fanned out over the same Dask task runner as synthesis, each
 point one MLflow child run under one sweep parent run. The sweep is resumable and can grow: the parent
 run is found again by a key over the sweep's settings (not its list of points), and points that already
 have a finished child run and a summary are not re-run, so adding seeds or methods runs only the new ones.
@@ -47,7 +47,7 @@ def sweep_points(tasks: list[str], methods: list[str], demo_steps: list[int], se
     points = []
     for task_name in tasks:
         for method in methods:
-            steps = [0] if method == "joint" else [k for k in demo_steps if method not in ("bc", "imitation") or k > 0]
+            steps = [0] if method == "joint" else [k for k in demo_steps if method in ("physics", "physics_gated") or k > 0]
             for k in steps:
                 points.extend(LNPoint(task_name, method, int(k), int(s)) for s in seeds)
     if not points:

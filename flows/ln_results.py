@@ -52,7 +52,7 @@ from prl.ln_summary import (
     thin_rows,
     write_summary,
 )
-from prl.version import file_digest, outcome_file_digests, outcome_version, version_of
+from prl.version import file_digest, method_family, outcome_file_digests, outcome_version, version_of
 
 POINT_PROCEDURE = 1
 """Version of what ``flows.train_ln.run_point`` computes for a point (pre-training, training, evaluation), a
@@ -72,14 +72,16 @@ def point_settings(point: LNPoint, setup: LNSetup, eval_seed: int,
     (``prl.config.LNConfig.params`` of the point's config), the evaluation's scene seed and count, the procedure;
     for the plan-space methods also the plan environment's physics frames and surface points, the PointNet's file name
     (keyed by its config and code version) and the ``recipe`` of the task's demonstrations (``dataset_recipe``);
-    joint control uses none of these. An imitation point's are its policy's settings (``prl.imitation``), the
+    joint control uses none of these, and joint_bc only the recipe. An imitation point's are its policy's settings (``prl.imitation``), the
     evaluation's, the procedure and the recipe."""
     common = {"eval_seed": int(eval_seed), "eval_scenes": len(setup.eval_seeds), "procedure": POINT_PROCEDURE}
     if point.method == "imitation":  # no LN: the policy's settings, on the same demonstrations' episodes
         policy = dataclasses.replace(setup.imitation, seed=point.seed)
         return {**{f"imitation.{k}": v for k, v in dataclasses.asdict(policy).items()}, **common, "dataset": recipe}
     settings: dict[str, Any] = {**point_config(point, setup.ln).params(), **common}
-    if point.method != "joint":
+    if point.method == "joint_bc":  # the joint-control env, pre-trained on the demonstrations' joint actions
+        settings.update(dataset=recipe)
+    elif point.method != "joint":
         settings.update(n_frames=int(setup.n_frames or EPISODE_FRAMES), n_points=int(setup.n_points),
                         pointnet=Path(setup.pointnet_path).name, dataset=recipe)
     return settings
@@ -129,7 +131,7 @@ def point_records(points: list[LNPoint], setup: LNSetup, dataset_root: Path, eva
                      "code_version": version_of(files[p.task, p.method]),
                      "code_files": files[p.task, p.method],
                      "dataset_digest": None if joint[p.name] else digests[p.task],
-                     "pointnet_sha256": None if joint[p.name] else pointnet}
+                     "pointnet_sha256": None if method_family(p.method) == "joint" else pointnet}
             for p in points}
 
 

@@ -7,7 +7,9 @@ update's timestep (``ln/success_rate``, ``ln/window_success_rate``, ``ln/reward`
 final policy's deterministic plan executed on the unseen evaluation scenes (``ln/eval/*`` with a 95%
 Wilson interval). Variants: ``physics`` (A2C over the Representation Space, pre-trained actor and
 critic on ``demo_steps`` demonstrations; 0 is pure RL), ``bc`` (the same with the actor alone
-pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``), and ``physics_gated`` (not the paper's:
+pre-trained), ``joint`` (A2C on 30-D joint targets, ``envs.joint_env``), ``joint_bc`` (the same, its actor first
+cloned from the K demonstrations' joint actions and its critic fitted to their returns, ``prl.joint_bc``), and
+``physics_gated`` (not the paper's:
 the physics method with the reward paid only on success, ``gated_rewards``; the curve's ``ln/reward`` stays the
 measure). ``imitation`` is no A2C run: LeRobot's ACT trained on the same K demonstrations' joint actions and rolled
 out in the joint-control environment (``run_imitation_point``); its curve is the training loss.
@@ -54,7 +56,7 @@ class LNPoint:
             raise ValueError(f"demo_steps must be an integer >= 0, got {self.demo_steps!r}")
         if self.method == "joint" and self.demo_steps:
             raise ValueError(f"the joint-control baseline has no demonstration pre-training (demo_steps={self.demo_steps})")
-        if self.method in ("bc", "imitation") and not self.demo_steps:
+        if self.method in ("bc", "joint_bc", "imitation") and not self.demo_steps:
             raise ValueError(f"the {self.method} method learns from demonstrations alone: give demo_steps > 0")
 
     @property
@@ -166,8 +168,11 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
 
     from envs.joint_env import JointControlEnv
     from envs.plan_env import PlanEnv
+    from envs.replay import replayed_demonstrations
     from envs.tasks import fast_resets, task_class
     from envs.vec_env import make_vec_env
+    from prl.imitation import drawn_episodes
+    from prl.joint_bc import pretrain_joint
     from prl.ln import make_ln, pretrain, save_ln, train_ln
     from prl.plots import plot_learning_curves
     from prl.rn_train import feature_stats
@@ -176,13 +181,15 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     if point.method == "imitation":
         return run_imitation_point(point, setup, parent_run_id)
     cfg = point_config(point, setup.ln)
-    joint = point.method == "joint"
+    joint = point.method in ("joint", "joint_bc")  # A2C on the joint-control environment
     demos = None if joint else read_demonstrations(setup.demo_dir, point.task)
+    episodes = drawn_episodes(setup.dataset_root, point.task, point.demo_steps, point.seed) \
+        if point.method == "joint_bc" else []  # K beyond the dataset's episodes: an error now
     served = demos.take(point.demo_steps, point.seed) if demos is not None else None  # K beyond the demos: error now
     setup.out_dir.mkdir(parents=True, exist_ok=True)
     params = {**cfg.params(), **{f"point.{k}": v for k, v in asdict(point).items()},
               "pointnet": str(setup.pointnet_path), "eval_scenes": len(setup.eval_seeds),
-              "demonstrations_available": len(demos.x) if demos is not None else 0,
+              "demonstrations_available": len(demos.x) if demos is not None else len(episodes),
               "demo_target": "commanded plan and its measured reward"}
     t0 = time.perf_counter()
     with tracking.child_run(point.name, params=params, parent_run_id=parent_run_id) as run:
@@ -197,6 +204,10 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
             model = make_ln(env, cfg, *stats)
             pre_rows = [] if served is None else pretrain(model, served, cfg.pretrain_mode, cfg.pretrain_epochs,
                                                           batch_size=cfg.steps_per_update, seed=cfg.seed)
+            if episodes:
+                cloned = replayed_demonstrations(setup.dataset_root, point.task, episodes, cfg.gamma, setup.progress)
+                pre_rows = pretrain_joint(model, cloned, cfg.pretrain_epochs, batch_size=cfg.steps_per_update,
+                                          seed=cfg.seed)
             _log_rows(pre_rows, "ln/pretrain", None)
             with fast_resets():
                 rows = train_ln(model, cfg.timesteps, progress=setup.progress, desc=point.name,
@@ -331,7 +342,7 @@ def evaluate_policy(point: LNPoint, model: Any, setup: LNSetup) -> list[Any]:
     from prl.pointnet import load_pointnet
 
     seeds = list(setup.eval_seeds)
-    if point.method == "joint":
+    if point.method in ("joint", "joint_bc"):
         return run_joint_policy(point.task, model.policy, seeds, progress=setup.progress)
     policy = ln_policy(model.policy, load_pointnet(setup.pointnet_path), point.task, load_plb().texts(point.task),
                        seeds, setup.n_points)

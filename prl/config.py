@@ -43,12 +43,14 @@ PAPER_LN_METHODS: tuple[str, ...] = ("physics", "bc", "joint")
 """The paper's LN methods (its Fig 8), a sweep's default: physics-guided A2C with actor+critic pre-training, the
 same with BC, joint control."""
 
-LN_METHODS: tuple[str, ...] = (*PAPER_LN_METHODS, "physics_gated", "imitation")
+LN_METHODS: tuple[str, ...] = (*PAPER_LN_METHODS, "physics_gated", "joint_bc", "imitation")
 """Every LN method: the paper's; ``physics_gated``, the physics method whose A2C reward is the task's measure
 only on an episode that meets the task's success rule (0 otherwise; ``flows.train_ln.gated_rewards``). Where the
-rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail; and
-``imitation``, no RL: LeRobot's ACT trained on the same K demonstrations' joint actions (``prl.imitation``) and
-rolled out in the joint-control environment."""
+rule asks more than the measure (the unscrew's grip), the paper's reward can pay most for plans that fail;
+``joint_bc``, joint control (A2C on joint targets) whose actor is first cloned from the same K demonstrations'
+joint actions and whose critic is fitted to their returns (``prl.joint_bc``, DAPG's protocol); and ``imitation``,
+no RL: LeRobot's ACT trained on the same K demonstrations' joint actions (``prl.imitation``) and rolled out in the
+joint-control environment."""
 
 
 @dataclass(frozen=True)
@@ -322,9 +324,9 @@ class AblationConfig:
     """Tasks swept, each with demonstrations in the dataset (``prl.task_registry.known_tasks``)."""
     methods: tuple[str, ...] = PAPER_LN_METHODS
     """LN methods swept (``LN_METHODS``): physics (actor+critic pre-training), bc, joint (joint control, no
-    demonstrations); physics_gated and imitation only when named."""
+    demonstrations); physics_gated, joint_bc and imitation only when named."""
     demo_steps: tuple[int, ...] = (0, PAPER_LN_DEMO_STEPS)
-    """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc and imitation only for K > 0, joint once."""
+    """Demonstration steps K swept (paper: 0, 320, 640, 1280, 2560); bc, joint_bc and imitation only for K > 0, joint once."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of each point."""
     eval_scenes: int = 50

@@ -74,9 +74,12 @@ class Group:
     """RL timesteps trained."""
 
     @property
-    def at_paper_budget(self) -> bool:
-        """Trained for the paper's RL budget, or an imitation point (which trains no RL)."""
-        return self.timesteps == PAPER_TIMESTEPS or self.method == "imitation"
+    def at_planned_budget(self) -> bool:
+        """Trained for the budget the experiment compares the method at: the paper's RL timesteps; none for
+        imitation (no RL); the plan runs' physics frames (more timesteps) for joint_bc."""
+        if self.method in ("imitation", "joint_bc"):
+            return self.method == "imitation" or self.timesteps > PAPER_TIMESTEPS
+        return self.timesteps == PAPER_TIMESTEPS
 
     @property
     def label(self) -> str:
@@ -130,8 +133,8 @@ class Planned:
 
 def planned_points(tasks: Sequence[str] = TASKS, seeds: Sequence[int] = PLAN_SEEDS) -> list[Planned]:
     """The experiment of the issue: per task physics K = 1,280, BC K = 1,280, physics K = 0 and joint control at
-    3,200 timesteps and imitation of the same K = 1,280 demonstrations on ``seeds``, joint control at the plan runs'
-    frames on the first seed; the hammer also physics K in ``HAMMER_EXTRA_K``."""
+    3,200 timesteps and imitation of the same K = 1,280 demonstrations on ``seeds``, joint control and joint_bc
+    (K = 1,280) at the plan runs' frames on the first seed; the hammer also physics K in ``HAMMER_EXTRA_K``."""
     out = []
     for t in tasks:
         arms = [("physics", PAPER_LN_DEMO_STEPS), ("bc", PAPER_LN_DEMO_STEPS), ("physics", 0), ("joint", 0),
@@ -139,6 +142,7 @@ def planned_points(tasks: Sequence[str] = TASKS, seeds: Sequence[int] = PLAN_SEE
         arms += [("physics", k) for k in HAMMER_EXTRA_K] if t == "hammer" else []
         out += [Planned(t, v, k, s) for v, k in arms for s in seeds]
         out.append(Planned(t, "joint", 0, seeds[0], equal_frames=True))
+        out.append(Planned(t, "joint_bc", PAPER_LN_DEMO_STEPS, seeds[0], equal_frames=True))
     return out
 
 
@@ -252,7 +256,7 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
     move a paper task's number."""
     by_method: dict[tuple[int, str, int, bool], dict[str, list[list[float]]]] = {}
     for g, members in groups.items():
-        if g.at_paper_budget:
+        if g.at_planned_budget:
             key = (g.method_index, g.method, g.demo_steps, g.task not in TASKS)
             by_method.setdefault(key, {})[g.task] = _runs(members)
     lines = ["| method | tasks | IQM over all seeds (95% stratified-bootstrap CI) |", "|---|---|---|"]
@@ -263,16 +267,17 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
 
 
 def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
-    """P(physics K = 1,280 > physics K = 0), P(physics K = 1,280 > BC K = 1,280) and, where it ran, P(physics K =
-    1,280 > imitation K = 1,280), per task that has either pair and over the paper's tasks that have both, at the
-    paper's budget."""
+    """P(physics K = 1,280 > physics K = 0), P(physics K = 1,280 > BC K = 1,280) and, where they ran, P(physics K =
+    1,280 > imitation K = 1,280) and P(physics K = 1,280 > joint_bc K = 1,280), per task that has either pair and
+    over the paper's tasks that have both, each at its planned budget (``Group.at_planned_budget``)."""
     def runs_of(method: str, k: int) -> dict[str, list[list[float]]]:
         return {g.task: _runs(m) for g, m in groups.items()
-                if g.method == method and g.demo_steps == k and g.at_paper_budget}
+                if g.method == method and g.demo_steps == k and g.at_planned_budget}
 
     ref = runs_of("physics", PAPER_LN_DEMO_STEPS)
     compared = [(f"P(physics K={PAPER_LN_DEMO_STEPS} > {m} K={k})", runs_of(m, k))
-                for m, k in (("physics", 0), ("bc", PAPER_LN_DEMO_STEPS), ("imitation", PAPER_LN_DEMO_STEPS))]
+                for m, k in (("physics", 0), ("bc", PAPER_LN_DEMO_STEPS), ("imitation", PAPER_LN_DEMO_STEPS),
+                             ("joint_bc", PAPER_LN_DEMO_STEPS))]
     compared = [(name, runs) for i, (name, runs) in enumerate(compared) if i < 2 or runs]
     others = [runs for _, runs in compared]
     tasks = [t for t in dict.fromkeys(g.task for g in groups) if t in ref and any(t in o for o in others)]
@@ -416,8 +421,8 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
         arms: dict[str, list[str]] = {}
         for p in missing:
             if p.task == task:
-                arm = "joint control at equal frames" if p.equal_frames else \
-                    Group(0, task, 0, p.method, p.demo_steps, PAPER_TIMESTEPS).label
+                arm = Group(0, task, 0, p.method, p.demo_steps, PAPER_TIMESTEPS).label
+                arm += " at equal frames" if p.equal_frames else ""
                 arms.setdefault(arm, []).append(str(p.seed))
         lines.append(f"| {task} | {'; '.join(f'{arm}: {",".join(seeds)}' for arm, seeds in arms.items())} |")
     budgets = [f"{t}: {b:,}" if (b := equal_frames_budget(groups, t)) else f"{t}: after its K = 1,280 runs"
@@ -435,7 +440,9 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
               "python -m flows.ablation $D --tasks hammer --methods physics --demo-steps "
               + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
               f"python -m flows.ablation --tasks <task> --methods joint --seeds {PLAN_SEEDS[0]} "
-              + f"--ln-timesteps <equal-frames steps> {tail}", "```"]
+              + f"--ln-timesteps <equal-frames steps> {tail}",
+              f"python -m flows.ablation $D --tasks <task> --methods joint_bc --demo-steps {PAPER_LN_DEMO_STEPS} "
+              + f"--seeds {PLAN_SEEDS[0]} --ln-timesteps <equal-frames steps> {tail}", "```"]
     if budgets:
         lines += ["", "Equal-frames joint-control steps: " + "; ".join(budgets) + "."]
     return lines
@@ -451,11 +458,11 @@ def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: P
     for task in dict.fromkeys(g.task for g in groups):
         mine = {g: [s["rows"] for s in m] for g, m in groups.items() if g.task == task}
         top = {g.label: rows for g, rows in mine.items()
-               if g.method == "joint" or (g.method in ("physics", "physics_gated")
+               if g.method in ("joint", "joint_bc") or (g.method in ("physics", "physics_gated")
                                            and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
                                            and g.timesteps == PAPER_TIMESTEPS)}
-        bottom = {g.label: rows for g, rows in mine.items() if g.method not in ("joint", "imitation")}
-        panels = [("physics-guided (K = 1,280 and K = 0) vs joint control", top),
+        bottom = {g.label: rows for g, rows in mine.items() if g.method not in ("joint", "joint_bc", "imitation")}
+        panels = [("physics-guided (K = 1,280 and K = 0) vs joint control and joint_bc", top),
                   ("demonstration steps K, and BC", bottom)]
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
             path = Path(out_dir) / f"fig8_{task}_{x_key}.png"
@@ -483,7 +490,7 @@ HOW_TO_READ = (
 FIG8_TEXT = (
     "Success rate over the last update's worth of episodes while training; mean over seeds with a min-max band; log "
     f"axes (a joint-control step is {JOINT_FRAMES_PER_STEP} physics frames, a plan episode about 770). Top: "
-    "physics-guided K = 1,280 and K = 0 against joint control; bottom: the demonstration steps and BC.")
+    "physics-guided K = 1,280 and K = 0 against joint control and joint_bc; bottom: the demonstration steps and BC.")
 """What the report says of its figures."""
 REWARD_TEXT = (
     "The LN's reward is the task's measure in the episode's outcome (the paper's d, N, theta, l), and success is the "

@@ -64,6 +64,9 @@ editing the joint-control environment leaves every plan-space point current, and
 OUTCOME_OWN_FILES: dict[str, tuple[str, ...]] = {
     # imitation: the LeRobot policy's training and rollout (prl.imitation), and the export's readers it trains from
     "imitation": ("prl/imitation.py", "prl/export_schema.py", "prl/export_check.py", "prl/dataset_files.py"),
+    # joint_bc: the draw of the demonstrations, their replay into transitions and the cloning
+    "joint_bc": ("prl/joint_bc.py", "envs/replay.py", "prl/imitation.py", "prl/export_schema.py",
+                 "prl/export_check.py", "prl/dataset_files.py"),
 }
 """Per method, files that decide its points' outcomes beyond its family's (``OUTCOME_METHOD_FILES``): editing the
 imitation policy's training leaves every other point current."""

@@ -227,3 +227,39 @@ def test_the_synthesis_replay_check_keeps_only_demos_that_replay(tmp_path: Path,
     not_replayed = [r for r in rows if r.get("replayed") is False]
     assert not_replayed and all(not r["success"] and r["measure"] > 0 for r in not_replayed)
     assert synthesis.yield_report(tmp_path / "refused", "hammer")["not_replayed"] == len(not_replayed)
+
+
+@pytest.mark.sim
+@pytest.mark.train
+def test_joint_bc_clones_the_replayed_demonstrations_then_trains_in_the_joint_env(dataset: Path, tmp_path: Path,
+                                                                                 monkeypatch: pytest.MonkeyPatch
+                                                                                 ) -> None:
+    """The joint_bc point: its demonstrations are the episodes replayed in the joint-control env (observations
+    as the recorded states, returns that add up to the measure the replay reached), its actor is cloned from them
+    before A2C, and it is evaluated as joint control is. An episode of another task is named."""
+    from envs.replay import episode_columns, replayed_demonstrations
+    from flows.train_ln import LNPoint, LNSetup, run_point
+    from prl import tracking
+    from prl.config import LNConfig
+
+    cols, _ = episode_columns(dataset)
+    demos = replayed_demonstrations(dataset, "hammer", [0, 1], gamma=1.0)
+    assert demos.obs.shape == (300, 60 + 52 + 1) and demos.action.shape == (300, 30)
+    assert np.all(np.abs(demos.action) <= 1.0)
+    # the observation before step k is the recorded row k, to the replay's accuracy (test above: 0.3)
+    assert np.max(np.abs(demos.obs[:, :30] - cols["observation.state"][:300, :30])) < 0.3
+    assert demos.obs[0, -1] == 0.0 and demos.obs[149, -1] == pytest.approx(149 / 150)
+    assert demos.ret[0] > 0.5 and demos.ret[150] > 0.5  # each replayed swing drove its nail (cm)
+    with pytest.raises(ValueError, match="episode 2 of the dataset .* is of task 'unscrew', not 'hammer'"):
+        replayed_demonstrations(dataset, "hammer", [0, 2], gamma=1.0)
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    tracking.configure("prl")
+    setup = LNSetup(demo_dir=tmp_path / "demos", pointnet_path=None, out_dir=tmp_path / "points",
+                    eval_seeds=(10_000_000,), ln=LNConfig(timesteps=64, hidden=(32, 32), pretrain_epochs=2),
+                    progress=False, dataset_root=dataset)
+    summary = run_point(LNPoint("hammer", "joint_bc", 2, 0), setup)
+    assert len(summary["pretrain"]) == 2 * 5  # 2 epochs of 300 transitions in minibatches of 64
+    assert summary["pretrain"][-1]["action_error"] < summary["pretrain"][0]["action_error"]
+    assert summary["rows"][-1]["timesteps"] == 64 and summary["eval"]["n"] == 1
+    assert summary["eval"]["outcomes"][0]["plan"] == []  # joint control has no plan

@@ -208,8 +208,11 @@ def test_ln_points_and_sweeps_name_bad_input() -> None:
     assert len(points) == 6 + 3 + 3  # physics K=0 and K=1280, bc K=1280, joint once; 3 seeds each
     with pytest.raises(ValueError, match="the imitation method learns from demonstrations alone"):
         LNPoint("hammer", "imitation", 0)
-    imitation = sweep_points(["hammer"], ["imitation"], [0, 1280], [0, 1])
-    assert [p.name for p in imitation] == ["ln-hammer-imitation-k1280-seed0", "ln-hammer-imitation-k1280-seed1"]
+    imitation = sweep_points(["hammer"], ["imitation", "joint_bc"], [0, 1280], [0, 1])
+    assert [p.name for p in imitation] == ["ln-hammer-imitation-k1280-seed0", "ln-hammer-imitation-k1280-seed1",
+                                           "ln-hammer-joint_bc-k1280-seed0", "ln-hammer-joint_bc-k1280-seed1"]
+    with pytest.raises(ValueError, match="the joint_bc method learns from demonstrations"):
+        LNPoint("hammer", "joint_bc", 0)
 
 
 def test_the_sweep_progress_counts_only_each_points_latest_run() -> None:

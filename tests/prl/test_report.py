@@ -59,7 +59,7 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
     assert "| all | 5 | 2.5 | 2.5 | 2.4 | 0.1 |" in text  # 5 points of 30 min on one core; 1,700 s + 100 s each
     assert "| method: physics | 3 | 1.5 | 1.5 |" in text and "| method: joint | 1 | 0.5 | 0.5 |" in text
     assert "at least one point was running during 1.5 h" in text  # 00:00-00:30, 01:00-01:30, 02:00-02:30
-    assert "5 of the 73 planned points are done." in text
+    assert "5 of the 77 planned points are done." in text
     assert "| hammer | physics K=1280: 2; bc K=1280: 1,2; physics K=0: 1,2; joint control: 1,2; " in text
     assert "| sweep | physics K=1280: 0,1,2; bc K=1280: 0,1,2;" in text
     assert "![hammer: Fig 8 against timesteps](results/fig8_hammer_timesteps.png)" in text
@@ -70,7 +70,7 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
 
 def test_the_plan_and_what_is_missing() -> None:
     plan = planned_points()
-    assert len(plan) == 4 * (5 * 3 + 1) + 3 * 3  # five arms x 3 seeds + equal frames per task; hammer 3 more K
+    assert len(plan) == 4 * (5 * 3 + 2) + 3 * 3  # five arms x 3 seeds + two at equal frames per task; hammer 3 more K
     summaries = read_summaries(FIXTURES)
     missing = missing_points(summaries, plan)
     assert len(plan) - len(missing) == 5
@@ -225,7 +225,7 @@ def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
 
     imitation = Group(0, "hammer", 4, "imitation", 1280, 0)
     groups = {Group(0, "hammer", 0, "physics", 1280, 3200): points(1.0, 1.0, 1.0), imitation: points(0.0, 1.0, 0.0)}
-    assert imitation.label == "imitation K=1280 (ACT, joint space)" and imitation.at_paper_budget
+    assert imitation.label == "imitation K=1280 (ACT, joint space)" and imitation.at_planned_budget
     assert "| imitation K=1280 (ACT, joint space) | hammer | 0.33 (" in "\n".join(across_tasks_table(groups))
     # physics 1.0 beats imitation's 0.0 twice and ties its 1.0 once, per pair of seeds: (2 + 0.5) / 3
     assert improvement_table(groups)[4].startswith("| P(physics K=1280 > imitation K=1280) | 0.83 (")
@@ -233,6 +233,24 @@ def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
     assert _window([loss]) == "loss 2.500 -> 0.250"
     summary = {"point": {"task": "hammer", "method": "imitation", "demo_steps": 1280, "seed": 1}, "timesteps": 0}
     assert Planned("hammer", "imitation", 1280, 1).done_by(summary)
+
+
+
+def test_joint_bc_is_compared_at_the_plan_runs_frames() -> None:
+    """joint_bc is planned, compared and drawn at equal frames (more timesteps than the paper's), not at 3,200."""
+    from prl.report import Group, Planned, improvement_table
+
+    def points(*scores: float) -> list[dict]:
+        return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
+
+    short, equal = Group(0, "hammer", 3, "joint_bc", 1280, 3200), Group(0, "hammer", 3, "joint_bc", 1280, 492_800)
+    assert not short.at_planned_budget and equal.at_planned_budget
+    assert equal.label == "joint_bc K=1280, 492,800 steps"
+    groups = {Group(0, "hammer", 0, "physics", 1280, 3200): points(1.0), short: points(1.0), equal: points(0.0)}
+    assert improvement_table(groups)[4].startswith("| P(physics K=1280 > joint_bc K=1280) | 1.00 (")
+    summary = {"point": {"task": "hammer", "method": "joint_bc", "demo_steps": 1280, "seed": 0}, "timesteps": 492_800}
+    assert Planned("hammer", "joint_bc", 1280, 0, equal_frames=True).done_by(summary)
+    assert not Planned("hammer", "joint_bc", 1280, 0, equal_frames=True).done_by({**summary, "timesteps": 3200})
 
 
 def test_the_reward_table_counts_failures_paid_like_a_success() -> None:

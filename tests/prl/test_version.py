@@ -106,8 +106,9 @@ def test_a_new_asset_changes_every_task_and_an_unknown_task_is_named(tree: Path)
 
 def test_each_methods_own_files_change_its_versions_only(tree: Path) -> None:
     """The joint-control environment decides the joint-space methods' outcomes alone, the plan environment the
-    plan-space methods' alone, the export's readers theirs and imitation's (it trains from an export), the imitation
-    policy's training imitation's alone; the shared executor every one."""
+    plan-space methods' alone, the export's readers theirs and the joint-space methods that learn from an export
+    (imitation, joint_bc), the imitation policy's training and the demonstrations' draw those two, the cloning
+    joint_bc's alone; the shared executor every one."""
     def all_versions() -> dict[tuple[str, str], str]:
         return {(t, m): outcome_version(t, m) for t in TASKS for m in ("physics", "bc", "reference", "joint",
                                                                         "joint_bc", "imitation")}
@@ -121,11 +122,16 @@ def test_each_methods_own_files_change_its_versions_only(tree: Path) -> None:
         before = all_versions()
         (tree / rel).write_text(f"# {rel}, edited\n")
         after = all_versions()
+        readers = ("imitation", "joint_bc") if "export" in rel else ()
         assert {k for k in before if before[k] != after[k]} == {
-            (t, m) for t in TASKS for m in ("physics", "bc", "reference", *(("imitation",) if "export" in rel else ()))}
+            (t, m) for t in TASKS for m in ("physics", "bc", "reference", *readers)}
     before = all_versions()
-    (tree / "prl/imitation.py").write_text("# the policy's training, edited\n")
-    assert {k for k, v in all_versions().items() if v != before[k]} == {(t, "imitation") for t in TASKS}
+    (tree / "prl/imitation.py").write_text("# the policy's training and the draw of the demonstrations, edited\n")
+    assert {k for k, v in all_versions().items() if v != before[k]} == {(t, m) for t in TASKS
+                                                                        for m in ("imitation", "joint_bc")}
+    before = all_versions()
+    (tree / "prl/joint_bc.py").write_text("# the cloning, edited\n")
+    assert {k for k, v in all_versions().items() if v != before[k]} == {(t, "joint_bc") for t in TASKS}
     before = all_versions()
     (tree / "envs/executor.py").write_text("# shared\n")
     assert all(v != before[k] for k, v in all_versions().items())
@@ -220,7 +226,7 @@ def _imports(rel: str) -> set[str]:
     return found
 
 
-@pytest.mark.parametrize("method", ["physics", "joint", "imitation"])
+@pytest.mark.parametrize("method", ["physics", "joint", "imitation", "joint_bc"])
 @pytest.mark.parametrize("task", known_tasks())
 def test_the_list_holds_everything_its_modules_import(task: str, method: str) -> None:
     """Every project module the listed ones import, at any depth, is listed too, or left out on purpose (another
