@@ -171,7 +171,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     from envs.replay import replayed_demonstrations
     from envs.tasks import fast_resets, task_class
     from envs.vec_env import make_vec_env
-    from prl.imitation import drawn_episodes
+    from prl.imitation import drawn_episodes, task_episodes
     from prl.joint_bc import pretrain_joint
     from prl.ln import make_ln, pretrain, save_ln, train_ln
     from prl.plots import plot_learning_curves
@@ -189,7 +189,8 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     setup.out_dir.mkdir(parents=True, exist_ok=True)
     params = {**cfg.params(), **{f"point.{k}": v for k, v in asdict(point).items()},
               "pointnet": str(setup.pointnet_path), "eval_scenes": len(setup.eval_seeds),
-              "demonstrations_available": len(demos.x) if demos is not None else len(episodes),
+              "demonstrations_available": len(demos.x) if demos is not None else
+              len(task_episodes(setup.dataset_root, point.task)) if episodes else 0,
               "demo_target": "commanded plan and its measured reward"}
     t0 = time.perf_counter()
     with tracking.child_run(point.name, params=params, parent_run_id=parent_run_id) as run:
