@@ -39,6 +39,7 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from envs.replay import synthesis_runs
 from flows.train_ln import LNPoint, LNSetup, point_config, run_point
 from prl import tracking
 from prl.constants import EPISODE_FRAMES
@@ -92,9 +93,7 @@ def dataset_recipe(dataset_root: Path, task_name: str) -> dict[str, Any]:
     run directories they came from (by name: ``seed<N>-shards<S>-frames<F>-<proposal>``, from each episode's demo
     path ``.../<run>/<task>/shard<k>/ep<j>.npz``) and their number."""
     scenes = [s for s in read_scenes(dataset_root) if s["task"] == task_name]
-    sources = [Path(str(s.get("source", ""))) for s in scenes]
-    runs = sorted({p.parents[2].name for p in sources if len(p.parents) > 2})
-    return {"synthesis": runs, "episodes": len(scenes)}
+    return {"synthesis": synthesis_runs(scenes), "episodes": len(scenes)}
 
 
 def task_dataset_digest(dataset_root: Path, demo_dir: Path, task_name: str) -> str:

@@ -83,6 +83,21 @@ def test_imitation_draws_the_plan_space_points_demonstrations(tmp_path: Path) ->
         drawn_episodes(tmp_path, "hammer", 6, 0)
 
 
+def test_the_replay_page_names_the_synthesis_runs_and_whether_they_were_checked() -> None:
+    from envs.replay import ReplayOutcome, replay_page, synthesis_runs
+
+    scenes = [{"source": f"/x/synthesis/{run}/hammer/shard000/ep000001.npz"} for run in ("b-replayed", "a-replayed")]
+    assert synthesis_runs([*scenes, {"source": ""}]) == ["a-replayed", "b-replayed"]
+    outcomes = [ReplayOutcome(0, "hammer", 1, True, True, 1.0, 1.1, 0.1),
+                ReplayOutcome(1, "hammer", 2, True, False, 1.0, 0.2, 0.4)]
+    page = replay_page(outcomes, "prl-replay ...", "ds", ["a-replayed", "b-replayed"])
+    assert ("Its demos came from the synthesis runs `a-replayed`, `b-replayed` (a demo kept only when its replay "
+            "succeeded at synthesis, `--replay-check`).") in page
+    assert "| hammer | 2 | 1 | 0.50 | 0.2500 | 0.4000 |" in page and "All tasks: 1/2 = 0.50." in page
+    assert "- hammer episode 1 (scene seed 2): True (1.00) -> False (0.20)" in page
+    assert "synthesis run `plain`." in replay_page(outcomes, "c", "ds", ["plain"])
+
+
 def test_imitation_config_names_bad_values() -> None:
     from prl.imitation import ImitationConfig, policy_config
 
