@@ -25,7 +25,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from prl.constants import N_JOINTS
-from prl.export_schema import read_scenes, replay_actions
+from prl.export_schema import FEATURES, read_scenes, replay_actions
 from prl.stages import STAGES
 
 
@@ -141,11 +141,13 @@ def replayed_demonstrations(root: Path | str, task: str, episodes: Sequence[int]
 
 def demo_replays(env: Any, demo: Any) -> bool:
     """Whether a recorded demo (``prl.demo.Demo``) succeeds again when its ``action`` stream, as the export writes it
-    (``prl.export_schema.replay_actions`` of its targets), is replayed open loop in ``env`` (a ``JointControlEnv`` of
-    the demo's length) on its scene, as ``replay_dataset`` replays an exported episode."""
+    (``prl.export_schema.replay_actions`` of its targets, rounded to the feature's float32), is replayed open loop in
+    ``env`` (a ``JointControlEnv`` of the demo's length) on its scene, as ``replay_dataset`` replays an exported
+    episode."""
     states = np.concatenate([np.asarray(demo.qpos), np.asarray(demo.qvel)], axis=1)
-    success, _, _ = replay_episode(env, demo.seed, replay_actions(np.asarray(demo.target)), states,
-                                   np.asarray(demo.stage).reshape(-1))
+    # in the dtype the export stores them: a knife-edge episode turns on the rounding to float32
+    actions = replay_actions(np.asarray(demo.target)).astype(FEATURES["action"]["dtype"])
+    success, _, _ = replay_episode(env, demo.seed, actions, states, np.asarray(demo.stage).reshape(-1))
     return success
 
 

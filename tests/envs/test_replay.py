@@ -98,6 +98,28 @@ def test_the_replay_page_names_the_synthesis_runs_and_whether_they_were_checked(
     assert "synthesis run `plain`." in replay_page(outcomes, "c", "ds", ["plain"])
 
 
+def test_the_replay_check_replays_the_actions_as_the_dataset_stores_them(monkeypatch: pytest.MonkeyPatch) -> None:
+    """float32, as exported: replaying the float64 targets instead passed tweeze demos at synthesis that failed
+    when replayed from the dataset (a 1e-7 difference decides such an episode)."""
+    from types import SimpleNamespace
+
+    from envs import replay
+
+    seen = {}
+
+    def fake(env, seed, actions, states, stages):
+        seen.update(actions=actions, seed=seed, stages=stages)
+        return True, 1.0, 0.0
+
+    monkeypatch.setattr(replay, "replay_episode", fake)
+    target = np.linspace(0.0, 1.0 + 1e-9, 90).reshape(3, 30)
+    demo = SimpleNamespace(seed=7, target=target, qpos=np.zeros((3, 30)), qvel=np.zeros((3, 30)),
+                           stage=np.array([[0], [1], [1]]))
+    assert replay.demo_replays(None, demo)
+    assert seen["actions"].dtype == np.float32 and seen["seed"] == 7 and seen["stages"].tolist() == [0, 1, 1]
+    np.testing.assert_array_equal(seen["actions"], np.float32(np.concatenate([target[1:], target[-1:]])))
+
+
 def test_imitation_config_names_bad_values() -> None:
     from prl.imitation import ImitationConfig, policy_config
 
