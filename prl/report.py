@@ -67,7 +67,7 @@ class Group:
     method_index: int
     """Position of the method in ``prl.config.LN_METHODS``."""
     method: str
-    """physics, bc, joint or physics_gated (``prl.config.LN_METHODS``)."""
+    """An LN method (``prl.config.LN_METHODS``)."""
     demo_steps: int
     """K."""
     timesteps: int
@@ -77,9 +77,9 @@ class Group:
     def at_planned_budget(self) -> bool:
         """Trained for the budget the experiment compares the method at: the paper's RL timesteps; none for
         imitation (no RL); the plan runs' physics frames (more timesteps) for joint_bc."""
-        if self.method in ("imitation", "joint_bc"):
-            return self.method == "imitation" or self.timesteps > PAPER_TIMESTEPS
-        return self.timesteps == PAPER_TIMESTEPS
+        if self.method == "imitation":
+            return True
+        return self.timesteps > PAPER_TIMESTEPS if self.method == "joint_bc" else self.timesteps == PAPER_TIMESTEPS
 
     @property
     def label(self) -> str:
@@ -114,13 +114,14 @@ class Planned:
     task: str
     """Task name."""
     method: str
-    """physics, bc, joint or physics_gated (``prl.config.LN_METHODS``)."""
+    """An LN method (``prl.config.LN_METHODS``)."""
     demo_steps: int
     """K."""
     seed: int
     """Seed."""
     equal_frames: bool = False
-    """Joint control at the plan runs' physics frames (any budget above the paper's) rather than 3,200 steps."""
+    """At the plan runs' physics frames (any budget above the paper's: joint control, joint_bc) rather than 3,200
+    steps."""
 
     def done_by(self, summary: Mapping[str, Any]) -> bool:
         """Whether ``summary`` is this point."""
