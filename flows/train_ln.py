@@ -87,7 +87,8 @@ class LNSetup:
     """Register the final policy as the MLflow model ``prl-ln`` (the pipeline does; sweep points do not)."""
     progress: bool = True
     dataset_root: Path | None = None
-    """The exported dataset the demonstrations came from: the imitation points train on its episodes."""
+    """The exported dataset the demonstrations came from: the imitation and joint_bc points learn from its
+    episodes."""
     imitation: ImitationConfig = dataclasses.field(default_factory=ImitationConfig)
     """The imitation points' policy and training; each point sets its seed."""
 
@@ -183,7 +184,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     cfg = point_config(point, setup.ln)
     joint = point.method in ("joint", "joint_bc")  # A2C on the joint-control environment
     demos = None if joint else read_demonstrations(setup.demo_dir, point.task)
-    episodes = drawn_episodes(setup.dataset_root, point.task, point.demo_steps, point.seed) \
+    episodes = drawn_episodes(dataset_of(point, setup), point.task, point.demo_steps, point.seed) \
         if point.method == "joint_bc" else []  # K beyond the dataset's episodes: an error now
     served = demos.take(point.demo_steps, point.seed) if demos is not None else None  # K beyond the demos: error now
     setup.out_dir.mkdir(parents=True, exist_ok=True)
@@ -238,6 +239,13 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     return summary
 
 
+def dataset_of(point: LNPoint, setup: LNSetup) -> Path:
+    """The dataset whose episodes ``point`` learns from; ValueError naming the point when the setup has none."""
+    if setup.dataset_root is None:
+        raise ValueError(f"point {point.name} learns from the dataset's episodes: the sweep needs a dataset_root")
+    return Path(setup.dataset_root)
+
+
 def run_imitation_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) -> dict[str, Any]:
     """An ``imitation`` point of the LN sweep: ``setup.imitation``'s policy trained on the dataset episodes of the
     K demonstrations that the plan-space points of its seed are pre-trained on (``prl.imitation.drawn_episodes``),
@@ -251,9 +259,7 @@ def run_imitation_point(point: LNPoint, setup: LNSetup, parent_run_id: str | Non
     from prl.imitation import ImitationActor, drawn_episodes, train_imitation
     from prl.plots import plot_learning_curves
 
-    if setup.dataset_root is None:
-        raise ValueError(f"point {point.name} trains on the dataset's episodes: the sweep needs a dataset_root")
-    episodes = drawn_episodes(setup.dataset_root, point.task, point.demo_steps, point.seed)
+    episodes = drawn_episodes(dataset_of(point, setup), point.task, point.demo_steps, point.seed)
     cfg = dataclasses.replace(setup.imitation, seed=point.seed)
     out_dir = Path(setup.out_dir) / point.name
     params = {**{f"imitation.{k}": v for k, v in dataclasses.asdict(cfg).items()},

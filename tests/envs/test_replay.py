@@ -175,7 +175,7 @@ def test_act_trains_on_the_dataset_and_acts_in_the_joint_env_as_an_ln_point(data
     assert targets.shape == (30,) and np.all(np.isfinite(targets))
     with pytest.raises(FileNotFoundError, match="no trained policy"):
         ImitationActor(tmp_path / "nowhere")
-    with pytest.raises(ValueError, match="needs a dataset_root"):
+    with pytest.raises(ValueError, match="learns from the dataset.s episodes: the sweep needs a dataset_root"):
         run_imitation_point(point, dataclasses.replace(setup, dataset_root=None))
 
 
