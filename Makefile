@@ -1,5 +1,5 @@
 # Two commands for a new machine: `make pipeline` (set-up + the main job) and `make test`.
-.PHONY: setup pipeline test test-fast probe
+.PHONY: setup pipeline test test-slow test-fast probe
 
 export XDG_RUNTIME_DIR ?= /tmp/prl-runtime
 
@@ -11,7 +11,11 @@ pipeline: setup
 
 test: setup
 	@mkdir -p $(XDG_RUNTIME_DIR)
-	.venv/bin/python -m pytest -q
+	.venv/bin/python -m pytest -q -m "not slow"
+
+test-slow: setup
+	@mkdir -p $(XDG_RUNTIME_DIR)
+	.venv/bin/python -m pytest -q -m slow
 
 test-fast: setup
 	@mkdir -p $(XDG_RUNTIME_DIR)

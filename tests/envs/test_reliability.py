@@ -69,16 +69,17 @@ def test_planning_errors_become_unreachable_failures_and_bugs_still_raise(monkey
 
 @pytest.mark.sim
 def test_fuzz_every_task_at_wide_randomisation() -> None:
-    """Uniformly random plans at 4x the training ranges: no exception, finite recordings, every task."""
+    """Uniformly random plans at 4x the training ranges: no exception, finite recordings, every task (3 pairs each
+    here; ``python -m envs.fuzz`` runs more)."""
     import envs  # noqa: F401
     from envs.fuzz import fuzz_task
     from envs.tasks import TASK_ENV_IDS
 
     for task in TASK_ENV_IDS:
-        report = fuzz_task(task, 6, randomization=4.0, seed=5, progress=False)
-        assert report.pairs == 6
+        report = fuzz_task(task, 3, randomization=4.0, seed=5, progress=False)
+        assert report.pairs == 3
         assert report.exceptions == [] and report.nonfinite == []
-        assert report.successes + sum(report.faults.values()) == 6
+        assert report.successes + sum(report.faults.values()) == 3
 
 
 @pytest.mark.sim
@@ -156,6 +157,7 @@ def _files(root: Path) -> dict[str, bytes]:
 
 
 @pytest.mark.sim
+@pytest.mark.slow
 def test_ten_kills_end_byte_identical(tmp_path: Path) -> None:
     """SIGKILL a shard ten times (once inside a demo write, once inside an attempt-line append, eight times at a
     random moment after it made progress), resume after each kill: the files equal an uninterrupted run's."""

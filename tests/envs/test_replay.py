@@ -182,6 +182,7 @@ def test_act_trains_on_the_dataset_and_acts_in_the_joint_env_as_an_ln_point(data
 @pytest.mark.sim
 @pytest.mark.train
 @pytest.mark.integration
+@pytest.mark.slow
 def test_the_imitation_flow_trains_registers_and_rolls_out(dataset: Path, tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     """``python -m flows.imitation`` as a user runs it: a parent run with its two child runs, the loss per step,
