@@ -39,6 +39,10 @@ from prl.atomic import atomic_file, write_atomic
 from prl.config import LN_METHODS, LNConfig, PipelineConfig
 from prl.imitation import ImitationConfig
 
+JOINT_A2C_METHODS: tuple[str, ...] = ("joint", "joint_bc")
+"""The methods whose A2C acts in the joint-control environment (``prl.version.JOINT_METHODS`` but imitation, which
+trains no A2C)."""
+
 
 @dataclass(frozen=True)
 class LNPoint:
@@ -182,7 +186,7 @@ def run_point(point: LNPoint, setup: LNSetup, parent_run_id: str | None = None) 
     if point.method == "imitation":
         return run_imitation_point(point, setup, parent_run_id)
     cfg = point_config(point, setup.ln)
-    joint = point.method in ("joint", "joint_bc")  # A2C on the joint-control environment
+    joint = point.method in JOINT_A2C_METHODS
     demos = None if joint else read_demonstrations(setup.demo_dir, point.task)
     episodes = drawn_episodes(dataset_of(point, setup), point.task, point.demo_steps, point.seed) \
         if point.method == "joint_bc" else []  # K beyond the dataset's episodes: an error now
@@ -349,7 +353,7 @@ def evaluate_policy(point: LNPoint, model: Any, setup: LNSetup) -> list[Any]:
     from prl.pointnet import load_pointnet
 
     seeds = list(setup.eval_seeds)
-    if point.method in ("joint", "joint_bc"):
+    if point.method in JOINT_A2C_METHODS:
         return run_joint_policy(point.task, model.policy, seeds, progress=setup.progress)
     policy = ln_policy(model.policy, load_pointnet(setup.pointnet_path), point.task, load_plb().texts(point.task),
                        seeds, setup.n_points)

@@ -34,6 +34,7 @@ from prl.ln_reference import read_references, reference_file_name, reference_not
 from prl.ln_summary import rate_cell, read_summaries, stale_points, stale_section
 from prl.robust_stats import probability_of_improvement, stratified_bootstrap_ci
 from prl.task_registry import declared, units_text
+from prl.version import JOINT_METHODS
 
 PAPER_TIMESTEPS = LNConfig().timesteps
 """The paper's RL budget (3,200 timesteps), the experiment's for every point but joint control at equal frames."""
@@ -462,7 +463,7 @@ def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: P
                if g.method in ("joint", "joint_bc") or (g.method in ("physics", "physics_gated")
                                            and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
                                            and g.timesteps == PAPER_TIMESTEPS)}
-        bottom = {g.label: rows for g, rows in mine.items() if g.method not in ("joint", "joint_bc", "imitation")}
+        bottom = {g.label: rows for g, rows in mine.items() if g.method not in JOINT_METHODS}
         panels = [("physics-guided (K = 1,280 and K = 0) vs joint control and joint_bc", top),
                   ("demonstration steps K, and BC", bottom)]
         for x_key, x_label in (("timesteps", "timesteps (RL steps)"), ("frames", "simulated physics frames")):
