@@ -187,8 +187,8 @@ def _fan_out(todo: list[LNPoint], setup: LNSetup, parent_id: str, workers: int, 
             futures = [ln_point.submit(p, setup, parent_id) for p in todo]
         else:
             futures = [ln_committed_point.submit(p, setup, parent_id, records[p.name], results_dir) for p in todo]
-        _watch(parent_id, {p.name for p in todo}, sum(p.method != "imitation" for p in todo) * setup.ln.timesteps,
-               futures)
+        _watch(parent_id, {p.name for p in todo}, sum(setup.imitation.steps if p.method == "imitation"
+                                                      else setup.ln.timesteps for p in todo), futures)
         return [f.result() for f in futures]
 
     return {s["name"]: s for s in _points(todo)}
@@ -204,15 +204,17 @@ def _reevaluate(finished: list[dict[str, Any]], setup: LNSetup, workers: int, da
 
 
 def _watch(parent_id: str, names: set[str], total: int, futures: list, period_s: float = 10.0) -> None:
-    """A progress bar over the sweep's timesteps, read from the points' ``ln/timesteps`` metric in MLflow."""
+    """A progress bar over the sweep's steps, read from the points' metrics in MLflow: RL timesteps
+    (``ln/timesteps``) and imitation gradient steps (``imitation/steps``)."""
     import mlflow  # heavy: mlflow
     from tqdm.auto import tqdm
 
-    with tqdm(total=total, desc="LN sweep", unit="timestep") as bar:
+    with tqdm(total=total, desc="LN sweep", unit="step") as bar:
         while not all(f.wrapped_future.done() for f in futures):
             runs = mlflow.search_runs(filter_string=f"tags.mlflow.parentRunId = '{parent_id}'", output_format="list")
             done = latest_point_runs(runs, names)
-            bar.n = int(sum(r.data.metrics.get("ln/timesteps", 0.0) for r in done))
+            bar.n = int(sum(r.data.metrics.get("ln/timesteps", 0.0) + r.data.metrics.get("imitation/steps", 0.0)
+                            for r in done))
             bar.set_postfix(points_finished=sum(r.info.status == "FINISHED" for r in done))
             bar.refresh()
             time.sleep(period_s)

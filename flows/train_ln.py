@@ -275,7 +275,8 @@ def run_imitation_point(point: LNPoint, setup: LNSetup, parent_run_id: str | Non
         mlflow.set_tags({"ln_point": point.name, "ln_method": point.method, "task": point.task})
 
         def log(row: dict[str, float]) -> None:
-            mlflow.log_metrics({f"imitation/{k}": v for k, v in row.items() if k != "step"}, step=int(row["step"]))
+            mlflow.log_metrics({**{f"imitation/{k}": v for k, v in row.items() if k != "step"},
+                                "imitation/steps": float(row["step"])}, step=int(row["step"]))
 
         result = train_imitation(setup.dataset_root, cfg, out_dir, episodes, progress=setup.progress, on_log=log)
         train_s = time.perf_counter() - t0

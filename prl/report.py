@@ -431,7 +431,9 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
                for t in dict.fromkeys(p.task for p in missing if p.equal_frames)]
     seeds, tail = ",".join(map(str, PLAN_SEEDS)), f"--results-dir {results_rel}"
     lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
-                  + "--pointnet-path ...`, which joint control alone does not need; imitation reads its "
+                  + "--pointnet-path ...`, which joint control alone does not need; the committed points' demos are "
+                  + "those of `python -m flows.full_pipeline --profile paper --proposal-defensive 0`, the synthesis "
+                  + "recipe their summaries name; imitation reads its "
                   + "`observation.environment_state`, which a dataset exported before it lacks; an `--output-dir` of each "
                   + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
               "", "```",

@@ -166,6 +166,7 @@ def test_act_trains_on_the_dataset_and_acts_in_the_joint_env_as_an_ln_point(data
     run = mlflow.get_run(summary["run_id"])
     assert run.data.tags["ln_method"] == "imitation" and run.data.params["episodes"] == "2"
     assert run.data.params["imitation.seed"] == "1"  # the point's seed, not the config's
+    assert run.data.metrics["imitation/steps"] == 4.0  # what the sweep's progress bar counts
     record = {"point": summary["point"], "timesteps": 0, "settings": {}, "code_version": "0" * 16,
               "dataset_digest": None}
     path = write_summary(tmp_path / "ln", committed_summary(summary, record, "t0", "t1", 1))

@@ -63,7 +63,7 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     res = _pipeline(tmp_path, "--tasks", "hammer,sweep", "--eval-scenes", "2", "--no-render",
                     "--output-dir", str(tmp_path / "out"), "--demos-per-task", "3", "--n-shards", "1", "--workers", "1",
                     "--pn-epochs", "1", "--pn-shapes", "64", "--rn-epochs", "3", "--rn-eval-scenes", "1",
-                    "--ln-timesteps", "64", "--ln-n-envs", "1")
+                    "--ln-timesteps", "16", "--ln-steps-per-update", "16", "--ln-n-envs", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     import mlflow
 
@@ -162,14 +162,14 @@ def test_pipeline_tracks_parent_and_children(tmp_path: Path) -> None:
     assert "prl-full-pipeline: profile quick" in tables["pipeline-summary"]
     assert "two camera videos 128x128, 10 pictures/s (av1)" in tables["pipeline-summary"]
 
-    # LN: one child run per task, pre-trained on the task's 3 demos, one A2C update of 64 plan episodes
+    # LN: one child run per task, pre-trained on the task's 3 demos, one A2C update of 16 plan episodes
     client = mlflow.tracking.MlflowClient()
     for task in ("hammer", "sweep"):
         ln = children[children["tags.mlflow.runName"] == f"ln-{task}-physics-k3-seed0"].iloc[0]
-        assert ln["params.ln.demo_steps"] == "3" and ln["params.ln.steps_per_update"] == "64"
+        assert ln["params.ln.demo_steps"] == "3" and ln["params.ln.steps_per_update"] == "16"
         assert ln["params.ln.learning_rate"] == "0.0007" and ln["params.sb3.vf_coef"] == "0.5"
-        assert [m.step for m in client.get_metric_history(ln["run_id"], "ln/success_rate")] == [64]
-        assert 0.0 <= ln["metrics.ln/success_rate"] <= 1.0 and ln["metrics.ln/frames"] > 64 * 700
+        assert [m.step for m in client.get_metric_history(ln["run_id"], "ln/success_rate")] == [16]
+        assert 0.0 <= ln["metrics.ln/success_rate"] <= 1.0 and ln["metrics.ln/frames"] > 16 * 700
         assert len(client.get_metric_history(ln["run_id"], "ln/pretrain/actor_loss")) == 10  # 10 epochs x 1 batch
         assert ln["metrics.ln/eval/success_rate"] in (0.0, 1.0) and ln["metrics.ln/eval/errors"] == 0.0
         assert ln["metrics.registered_reload_action_mismatches"] == 0.0
