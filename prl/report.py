@@ -233,8 +233,12 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]],
         k = max(physics, default=None)
         head = f"a task variant, physics pre-trained on its demos{f' (K = {k:,})' if k else ''}"
         target, members = VARIANT_TARGET, physics.get(k)
+    rn = ""
+    if task not in TASKS and ref and "rn" in ref["plans"]:
+        won, n = ref["plans"]["rn"]["successes"], ref["plans"]["rn"]["n"]
+        rn = f" The RN argmax plan (reference): {rate_cell(won, n)}, {'met' if won / n >= target else '**missed**'}."
     if not members:
-        return f"Target ({head}, pooled >= {target:.2f}): not run yet."
+        return f"Target ({head}, pooled >= {target:.2f}): not run yet.{rn}"
     won, n = _pooled(members)
     verdict = "met" if n and won / n >= target else "**missed**"
     line = (f"Target ({head}, pooled >= {target:.2f}): {verdict} ({won}/{n} over {len(members)} "
@@ -246,10 +250,7 @@ def target_line(task: str, groups: Mapping[Group, Sequence[Mapping[str, Any]]],
         met = f" ({'met' if won / n >= target else '**missed**'})" if task not in TASKS and n else ""
         line += (f" With the reward paid only on success (physics_gated, the same K; not the paper's reward): "
                  f"{rate_cell(won, n)} over {len(gated)} seed{'s' if len(gated) != 1 else ''}{met}.")
-    if task not in TASKS and ref and "rn" in ref["plans"]:
-        won, n = ref["plans"]["rn"]["successes"], ref["plans"]["rn"]["n"]
-        line += f" The RN argmax plan (reference): {rate_cell(won, n)}, {'met' if won / n >= target else '**missed**'}."
-    return line
+    return line + rn
 
 
 def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:

@@ -186,6 +186,9 @@ def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     assert target_line("hammer", groups, rn).endswith("over 2 seeds).")  # a paper task's target is the LN's only
     assert target_line("sweep_mixed", groups) == ("Target (a task variant, physics pre-trained on its demos, "
                                                   "pooled >= 0.85): not run yet.")
+    assert target_line("sweep_mixed", groups, rn) == ("Target (a task variant, physics pre-trained on its demos, "
+                                                      "pooled >= 0.85): not run yet. The RN argmax plan (reference): "
+                                                      "42/50 = 0.84 (0.71-0.92), **missed**.")  # its RN, before any LN
 
 
 def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
