@@ -179,10 +179,10 @@ def _iqm_cell(runs: Mapping[str, list[list[float]]]) -> str:
     return _ci(*stratified_bootstrap_ci(runs, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED))
 
 
-def _poi_cell(x: Mapping[str, list[list[float]]], y: Mapping[str, list[list[float]]]) -> str:
+def _poi(x: Mapping[str, list[list[float]]], y: Mapping[str, list[list[float]]]) -> tuple[float, float, float] | None:
     if not x or not all(r for rs in [*x.values(), *y.values()] for r in rs):
-        return "-"
-    return _ci(*probability_of_improvement(x, y, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED))
+        return None
+    return probability_of_improvement(x, y, reps=BOOTSTRAP_REPS, seed=BOOTSTRAP_SEED)
 
 
 SUCCESS_HEADER = ("| method | seeds | per seed | pooled (95% Wilson CI) | IQM (95% bootstrap CI) "
@@ -272,7 +272,8 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
 def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
     """P(physics K = 1,280 > physics K = 0), P(physics K = 1,280 > BC K = 1,280) and, where they ran, P(physics K =
     1,280 > imitation K = 1,280) and P(physics K = 1,280 > joint_bc K = 1,280), per task that has either pair and
-    over the paper's tasks that have both, each at its planned budget (``Group.at_planned_budget``)."""
+    over the paper's tasks that have both, each at its planned budget (``Group.at_planned_budget``); then per task
+    the comparisons whose interval leaves out 0.5 (resolved) and those whose interval holds it."""
     def runs_of(method: str, k: int) -> dict[str, list[list[float]]]:
         return {g.task: _runs(m) for g, m in groups.items()
                 if g.method == method and g.demo_steps == k and g.at_planned_budget}
@@ -285,13 +286,20 @@ def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> li
     others = [runs for _, runs in compared]
     tasks = [t for t in dict.fromkeys(g.task for g in groups) if t in ref and any(t in o for o in others)]
     lines = [f"| comparison | {' | '.join(tasks)} | paper tasks with both |", "|---|" + "---|" * (len(tasks) + 1)]
+    verdicts: dict[str, dict[str, list[str]]] = {t: {"resolved": [], "not resolved": []} for t in tasks}
     for name, other in compared:
-        both = [t for t in tasks if t in ref and t in other]
-        cells = [_poi_cell({t: ref[t]}, {t: other[t]}) if t in both else "-" for t in tasks]
-        paper = [t for t in both if t in TASKS]
-        overall = _poi_cell({t: ref[t] for t in paper}, {t: other[t] for t in paper}) if paper else "-"
-        lines.append(f"| {name} | {' | '.join(cells)} | {overall} |")
-    return lines
+        per_task = {t: _poi({t: ref[t]}, {t: other[t]}) if t in other else None for t in tasks}
+        paper = [t for t in tasks if t in other and t in TASKS]
+        overall = _poi({t: ref[t] for t in paper}, {t: other[t] for t in paper}) if paper else None
+        lines.append(f"| {name} | {' | '.join(_ci(*p) if p else '-' for p in per_task.values())} "
+                     f"| {_ci(*overall) if overall else '-'} |")
+        for t, p in per_task.items():
+            if p:  # resolved when the interval of P(A > B) leaves out 0.5, the coin flip
+                verdicts[t]["not resolved" if p[1] <= 0.5 <= p[2] else "resolved"].append(f"{name} = {_ci(*p)}")
+    bullets = [f"- {t}: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in kinds.items() if v) for t, kinds in
+               verdicts.items() if any(kinds.values())]
+    head = "Per task, which comparisons the 95% interval resolves (it leaves out 0.5) and which it does not:"
+    return lines + (["", head, "", *bullets] if bullets else [])
 
 
 def _measure(outcome: Mapping[str, Any]) -> float | None:

@@ -215,7 +215,9 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
     # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last column is the hammer's
     assert poi[2] == "| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) |"
     assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - |"
-    assert len(poi) == 4  # no imitation point: no row for it
+    assert len(poi) == 9 and poi[4] == ""  # no imitation point: no row for it; then each task's verdicts
+    assert poi[7:] == ["- hammer: resolved: P(physics K=1280 > physics K=0) = 1.00 (1.00-1.00)",
+                       "- hammer_mixed: resolved: P(physics K=1280 > physics K=0) = 0.00 (0.00-0.00)"]
 
 
 def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
@@ -231,7 +233,10 @@ def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
     assert imitation.label == "imitation K=1280 (ACT, joint space)" and imitation.at_planned_budget
     assert "| imitation K=1280 (ACT, joint space) | hammer | 0.33 (" in "\n".join(across_tasks_table(groups))
     # physics 1.0 beats imitation's 0.0 twice and ties its 1.0 once, per pair of seeds: (2 + 0.5) / 3
-    assert improvement_table(groups)[4].startswith("| P(physics K=1280 > imitation K=1280) | 0.83 (")
+    poi = improvement_table(groups)
+    assert poi[4] == "| P(physics K=1280 > imitation K=1280) | 0.83 (0.50-1.00) | 0.83 (0.50-1.00) |"
+    # an interval that reaches 0.5 resolves nothing
+    assert poi[-1] == "- hammer: not resolved: P(physics K=1280 > imitation K=1280) = 0.83 (0.50-1.00)"
     loss = {"rows": [], "loss": [{"step": 10, "loss": 2.5}, {"step": 20, "loss": 0.25}]}
     assert _window([loss]) == "loss 2.500 -> 0.250"
     summary = {"point": {"task": "hammer", "method": "imitation", "demo_steps": 1280, "seed": 1}, "timesteps": 0}
