@@ -36,12 +36,8 @@ from flows.compute_features import Features
 from flows.evaluate_rn import RNEval
 from prl import tracking
 from prl.atomic import atomic_file, write_atomic
-from prl.config import LN_METHODS, LNConfig, PipelineConfig
+from prl.config import JOINT_A2C_METHODS, LN_METHODS, LNConfig, PipelineConfig
 from prl.imitation import ImitationConfig
-
-JOINT_A2C_METHODS: tuple[str, ...] = ("joint", "joint_bc")
-"""The methods whose A2C acts in the joint-control environment (``prl.version.JOINT_METHODS`` but imitation, which
-trains no A2C)."""
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,10 @@ joint actions and whose critic is fitted to their returns (``prl.joint_bc``, DAP
 no RL: LeRobot's ACT trained on the same K demonstrations' joint actions (``prl.imitation``) and rolled out in the
 joint-control environment."""
 
+JOINT_A2C_METHODS: tuple[str, ...] = ("joint", "joint_bc")
+"""The methods whose A2C acts in the joint-control environment (``prl.version.JOINT_METHODS`` but imitation, which
+trains no A2C)."""
+
 
 @dataclass(frozen=True)
 class LNConfig:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from prl.atomic import write_atomic
-from prl.config import LN_METHODS, PAPER_LN_DEMO_STEPS, LNConfig
+from prl.config import JOINT_A2C_METHODS, LN_METHODS, PAPER_LN_DEMO_STEPS, LNConfig
 from prl.constants import REPO_ROOT, TASKS
 from prl.ln_reference import read_references, reference_file_name, reference_note, reference_rows
 from prl.ln_summary import rate_cell, read_summaries, stale_points, stale_section
@@ -471,7 +471,7 @@ def draw_figures(groups: Mapping[Group, Sequence[Mapping[str, Any]]], out_dir: P
     for task in dict.fromkeys(g.task for g in groups):
         mine = {g: [s["rows"] for s in m] for g, m in groups.items() if g.task == task}
         top = {g.label: rows for g, rows in mine.items()
-               if g.method in ("joint", "joint_bc") or (g.method in ("physics", "physics_gated")
+               if g.method in JOINT_A2C_METHODS or (g.method in ("physics", "physics_gated")
                                            and g.demo_steps in (0, PAPER_LN_DEMO_STEPS)
                                            and g.timesteps == PAPER_TIMESTEPS)}
         bottom = {g.label: rows for g, rows in mine.items() if g.method not in JOINT_METHODS}
