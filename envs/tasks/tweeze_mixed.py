@@ -1,5 +1,5 @@
-"""PRL tweezing task, mixed variant (issue #26): the base task's tweezers and cube, or long tweezers with a tall block
-standing deep between their arms."""
+"""PRL tweezing task, mixed variant (issue #26): the base task's tweezers with a flat tile between the tips, or long
+tweezers with a tall block standing deep between their arms."""
 
 from __future__ import annotations
 
@@ -85,17 +85,18 @@ class TweezeFamily:
                                  f"got {value!r}")
 
 
-TIPS = TweezeFamily(name="tips")
-"""Family 0: the base task's scenes (``PRL-Tweeze-v1``'s ranges): tweezers 15-17 cm long, the cube (2.0-2.5 cm)
-between the tips, its far face 8 mm inside them."""
+TIPS = TweezeFamily(name="tips", height_ratio=(0.3, 0.45))
+"""Family 0: the base task's tweezers (``PRL-Tweeze-v1``'s ranges: 15-17 cm long, tips 4.0-4.6 cm apart) and, where
+its cube lay (far face 8 mm inside the tips), a flat square tile 2.0-2.5 cm across and 0.3-0.45 times as thick
+(0.6-1.1 cm, of the base task's 4-15 g)."""
 TALL_DEEP = TweezeFamily(
     name="tall_deep", arm_length=(0.25, 0.27), tip_gap=(0.048, 0.052), cube_size=(0.024, 0.027),
-    cube_along=(-0.065, -0.055), height_ratio=(2.4, 2.8),
+    cube_along=(-0.057, -0.050), height_ratio=(2.6, 3.0),
 )
-"""Family 1: long tweezers (25-27 cm, tips 4.8-5.2 cm apart) and a square block (2.4-2.7 cm across, 2.4-2.8 times
-as tall: 5.8-7.6 cm, of the base task's 4-15 g) standing deep between the arms, 5.5-6.5 cm further towards the
-hinge than family 0's cube (on the tips' block, which then reaches back under it). Its top stands 4.6-6.4 cm above
-the arms', as high as the palm of a pinch or a precision disk comes (4.5-5 cm above them) or higher."""
+"""Family 1: long tweezers (25-27 cm, tips 4.8-5.2 cm apart) and a square block (2.4-2.7 cm across, 2.6-3.0 times
+as tall: 6.2-8.1 cm, of the base task's 4-15 g) standing deep between the arms, 5.0-5.7 cm further towards the
+hinge than family 0's tile (on the tips' block, which then reaches back under it). Its top stands 5-7 cm above the
+arms', higher than the palm of a pinch or a precision disk comes (4.5-5 cm above them)."""
 
 
 @register_env("PRL-TweezeMixed-v1", max_episode_steps=150)
@@ -105,60 +106,67 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
     tips; the same spring hinge, cradle, rack and tips' block, the same executor stages and cube watch) on scenes
     of two families, drawn from the scene's seed, whose physics needs different plans. The executor puts the palm
     across the arms over T_gv (the arms between 40% and 60% of their length), its thumb side towards the butt and
-    its little-finger side towards the tips and the cube; a0 tilts it about the arms, a1 about the axis across
+    its little-finger side towards the tips and the object; a0 tilts it about the arms, a1 about the axis across
     them, and the anchor's column (a2 even: on the thumb side, odd: on the little-finger side) shifts the whole
     hand 3.2 cm along the arms:
 
-    - family 0, ``tips``: the base task's scenes, arms 15-17 cm long, tips 4.0-4.6 cm apart, the cube (edge
-      2.0-2.5 cm) between the tips. A squeeze must land well out towards the tips to shut them on the cube: the
-      hand shifted towards the butt (odd anchors) squeezes too near the hinge and lifts the tweezers with their
-      tips open. Plan: ``(2, 1, 4, 2, 6, 1)``, the base task's expert (tilt -10 deg about X, -20 deg about Z,
-      anchor 4, palmar pinch, finger squeeze).
-    - family 1, ``tall_deep``: arms 25-27 cm long, tips 4.8-5.2 cm apart, and instead of the cube a square block
-      2.4-2.7 cm across and 2.4-2.8 times as tall (5.8-7.6 cm), standing 5.5-6.5 cm deeper between the arms (its
-      centre about 17.5-19.5 cm from the hinge) on the tips' block, which reaches back under it. Its top stands
-      4.6-6.4 cm above the arms, as high as the palm of a pinch or a precision disk comes (4.5-5 cm above them) or
-      higher. A hand at anchor 4 reaches from T_gv's centre towards the tips, over the block: closing, the
-      palm or its little-finger side presses on the block (``palm``, ``lf_metacarpal`` or ``lf_proximal`` on
-      scenes 5, 8, 10 and 11 for the two plans below), and a touched object never counts.
-      The hand shifted 3.2 cm towards the butt (anchor 5) closes beside the block, and on these long arms its
-      squeeze is still far enough from the hinge to shut the tips on it. Plan: ``(2, 2, 5, 3, 6, 1)`` (tilt -10 deg
-      about X and about Z, anchor 5, precision disk, finger squeeze).
+    - family 0, ``tips``: the base task's tweezers (arms 15-17 cm long, tips 4.0-4.6 cm apart) and, where its cube
+      lay between the tips, a flat square tile (edge 2.0-2.5 cm, 0.3-0.45 times as thick: 0.6-1.1 cm). A squeeze
+      must land well out towards the tips to shut them on it: the hand shifted towards the butt (odd anchors)
+      squeezes too near the hinge and lifts the tweezers with their tips open. Plan: ``(0, 3, 4, 2, 6, 1)`` (the
+      palm untilted, anchor 4, palmar pinch, finger squeeze).
+    - family 1, ``tall_deep``: arms 25-27 cm long, tips 4.8-5.2 cm apart, and instead of the tile a square block
+      2.4-2.7 cm across and 2.6-3.0 times as tall (6.2-8.1 cm), standing 5.0-5.7 cm deeper between the arms on the
+      tips' block, which reaches back under it. Its top stands 5-7 cm above the arms, higher than the palm of a
+      pinch or a precision disk comes (4.5-5 cm above them). A hand at anchor 4 reaches from T_gv's centre towards
+      the tips, over the block: closing, the palm or its little-finger side presses on the block (``palm``,
+      ``lf_metacarpal`` or ``lf_proximal``), and a touched object never counts. The hand shifted 3.2 cm towards the
+      butt (anchor 5) closes beside the block, and on these long arms its squeeze is still far enough from the
+      hinge to shut the tips on it. Plan: ``(2, 2, 5, 3, 6, 1)`` (tilt -10 deg about X and about Z, anchor 5,
+      precision disk, finger squeeze).
 
-    Why one plan no longer does both: the tips need the hand towards the tips (anchor 4: the squeeze far from the
-    hinge), the tall block needs it away from them (anchor 5: the hand clear of the block). The plans that solved
-    the variant when family 1 held a cube (``long_deep``: the same tweezers, a 2.4-2.7 cm cube 6-7 cm deep; the
-    search recorded in ``docs/variant_search.json`` before this change: ``(0, 2, 4, 3, 1, 1)``, an untilted precision
-    disk at anchor 4, 46/50 of its check scenes, 25/25 of the deep cubes; ``(3, 0, 4, 2, 6, 1)``, a pinch at anchor
-    4, 32/50) cleared that cube under the palm by 2-3 cm; the tall block reaches the palm, and they lift it with a
-    hand link on it.
+    Why one plan does not do both: the tile needs the hand towards the tips (anchor 4: the squeeze far from the
+    hinge), the tall block needs it away from them (anchor 5: the hand clear of the block).
 
-    Measured (2026-12-06), ``python -m envs.variant_search --tasks tweeze_mixed`` (the default size: 4 rounds of 20
-    plans x 3 scenes from each start, the 5 best of each and both experts on 50 balanced check scenes, 25 of each
-    family): best fixed plan ``(0, 2, 4, 3, 1, 1)`` 28/50 = 0.56 (95% CI 0.42-0.69; 21/25 tips, 7/25 tall_deep),
-    as good ``(3, 2, 1, 0, 6, 2)``, a medium wrap at anchor 1 (25/25 and 3/25); family 0's plan 25/25 on its
-    family and 0/25 on the other, family 1's 24/25 and 0/25; the family oracle 49/50. ``python -m
-    envs.family_probe --task tweeze_mixed --family 1 --plans 0,2,4,3,1,1 2,2,5,3,6,1 0,1,5,2,6,1 3,0,4,2,6,1
-    --scenes 16 --first-seed 41000``: 5/16, 16/16, 16/16 and 1/16 (each of the disk's 11 failures lifted the
-    block over 10 cm with a hand link on it). The design step: with the block 2.0-2.4 times as tall and 6-7 cm
-    deep, the same search gave the same best plan 28/50 (7/25 tall_deep) and the family 1 plan 25/25, but on
-    scenes 41000-41015 the disk lifted 9/16 blocks untouched and the family 1 plan only 14/16; the taller block
-    (2.4-2.8) 5 mm nearer the tips took them to 5/16 and 16/16 there.
+    Why a tile and not the base task's cube (2026-12-07): an RN decodes the per-dimension mode of the plans that
+    succeed under the prior, and on the cube that mode failed. The cube is lifted from anchors 1-4 (the untilted
+    palm, a1 = 3, most often away from anchor 4), and at anchor 4 an untilted palm touches a cube 2-2.5 cm tall
+    (``(0, 3, 4, 2, 6, 1)`` 0/12 on scenes 54000-54011, each lifted 17 cm with a hand link on it): the mode ``(0, 3,
+    4, 2, 6, 1)`` took anchor 4 from one place and a1 = 3 from another, and an RN that read the family perfectly
+    lifted 1 of 11 cubes. Under the tile the palm passes over it: ``python -m envs.family_probe --task tweeze_mixed
+    --family 0 --set height_ratio=0.3,0.45 --plans ... --prior 400 --scenes 20 --first-seed 57000`` had 31/400 prior
+    plans succeed, and the ``rn`` decoding of their successes, ``(1, 3, 4, 2, 6, 1)``, lifted 19/20 tiles (the
+    family's plan ``(0, 3, 4, 2, 6, 1)`` 19/20, the base task's expert ``(2, 1, 4, 2, 6, 1)`` 14/20). Family 1's
+    block rose from 2.4-2.8 and moved 5 mm nearer the tips for the same reason: its decoding ``(0, 2, 5, 2, 6, 1)``
+    touched the old block on 5 of 16 scenes (seeds 56000-56015) and lifts 15 of 16 new ones. Under the variant's own
+    prior (``assets/plb.yaml``: the tweeze prior with every anchor equally likely; the tweeze row gives anchors 4
+    and 5 0.15 and 0.10), the same probe on family 1 (seeds 58000-58019, 48/400 prior plans) decodes ``rn`` ``(2, 3,
+    5, 2, 6, 1)`` 19/20 and ``rn_library`` ``(0, 3, 5, 2, 6, 1)`` 18/20; under the tweeze prior ``rn`` took anchor 3
+    (5/20): family 1's successes split between anchors 3 and 5.
+
+    Under search this design does not hold (2026-12-07, ``python -m envs.variant_search --tasks tweeze_mixed``, the
+    default size, 50 balanced check scenes): a medium wrap at anchor 1 lifted by the arm, ``(3, 3, 1, 0, 4, 1)``,
+    lifts 43/50 = 0.86 (24/25 tiles, 19/25 tall blocks); each family's plan 24/25 and 25/25 on its own family, 0/25
+    on the other; the oracle 49/50. The wrap shuts the tips from near the hinge on both tweezers and touches neither
+    object. It was open before this change too (the 2026-12-06 search did not find it): on the cube and the 2.4-2.8
+    block 6.5-5.5 cm deep it lifts 25/25 and 14/25 (``envs.family_probe``, scenes 60000-60024); a stiffer hinge (3-4
+    or 5-6 N m/rad) stops it no more than the family's pinch (both lift 11/12, then 9/12 tiles).
 
     The family is ``scene_params["family"]``; x sees it through the sizes (the arms' length and the tips' gap in
     the tweezers' point cloud, rebuilt by the base task's ``tweeze_tool_mesh``; the object's edge and height,
     ``cube_size`` and ``cube_height``, in the object's, rebuilt by this module's ``tweeze_block_mesh``) and
-    through the poses x_manip records (the object 5.5-6.5 cm deeper between the arms relative to the tweezers'
-    pose, its centre 2-3 cm higher), never through the family index. The executor, the RN and the LN do not
+    through the poses x_manip records (the object 5-5.7 cm deeper between the arms relative to the tweezers'
+    pose, its centre 2.5-4 cm higher), never through the family index. The executor, the RN and the LN do not
     read it.
 
     **Randomizations:**
     - the family: 0 or 1 with probability 1/2 each, the first value drawn from the scene's seeded generator
     - then, from the family's ranges (scaled by ``randomization`` as the base task's): arm length, open tip gap,
-      spring stiffness in [1, 2] N m/rad, tweezers friction in [0.8, 1.2], cube edge, cube mass in [4, 15] g,
-      cube friction in [0.6, 1.0], tweezers position +-2 cm in x, y and yaw +-10 deg, the cube's spot along the
-      arms (family 0: +-3 mm; family 1: 5.5-6.5 cm deeper) and across them (+-3 mm, nearer arm a as the base task)
-    - last, the object's height over its edge (family 0: 1, a cube; family 1: 2.4-2.8), ``cube_height``
+      spring stiffness in [1, 2] N m/rad, tweezers friction in [0.8, 1.2], object edge, object mass in [4, 15] g,
+      object friction in [0.6, 1.0], tweezers position +-2 cm in x, y and yaw +-10 deg, the object's spot along
+      the arms (family 0: +-3 mm; family 1: 5.0-5.7 cm deeper) and across them (+-3 mm, nearer arm a as the base
+      task)
+    - last, the object's height over its edge (family 0: 0.3-0.45, a tile; family 1: 2.6-3.0), ``cube_height``
 
     **Success Conditions:**
     - the base task's, unchanged: the object's lowest point more than 10 cm above the block it rested on at the
@@ -168,13 +176,13 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
 
     task_name = "tweeze_mixed"
     object_mesh = staticmethod(tweeze_block_mesh)
-    """The object's cloud: a block ``cube_size`` across and ``cube_height`` tall (family 0: a cube, the base task's
-    ``tweeze_object_mesh``); the tweezers' cloud is the base task's ``tweeze_tool_mesh``."""
+    """The object's cloud: a block ``cube_size`` across and ``cube_height`` tall (family 0: a flat tile, family 1: a
+    tall block); the tweezers' cloud is the base task's ``tweeze_tool_mesh``."""
     families: ClassVar[tuple[TweezeFamily, ...]] = (TIPS, TALL_DEEP)
-    family_expert_plans: ClassVar[dict[int, tuple[int, ...]]] = {0: (2, 1, 4, 2, 6, 1), 1: (2, 2, 5, 3, 6, 1)}
-    """Family 0 (tips): palmar pinch at anchor 4 (the hand towards the tips), the base task's expert; family 1
-    (tall_deep): precision disk at anchor 5 (the hand 3.2 cm towards the butt, clear of the tall block); both tilt
-    -10 deg about X and squeeze the fingers (a4 = finger_squeeze); a5 is not acted on (no place stage)."""
+    family_expert_plans: ClassVar[dict[int, tuple[int, ...]]] = {0: (0, 3, 4, 2, 6, 1), 1: (2, 2, 5, 3, 6, 1)}
+    """Family 0 (tips): untilted palmar pinch at anchor 4 (the hand towards the tips); family 1 (tall_deep):
+    precision disk at anchor 5 (the hand 3.2 cm towards the butt, clear of the tall block), tilted -10 deg about X
+    and Z; both squeeze the fingers (a4 = finger_squeeze); a5 is not acted on (no place stage)."""
     expert_plan = family_expert_plans[0]
 
     @classmethod
@@ -185,9 +193,9 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
             if not isinstance(spec, TweezeFamily):
                 raise ValueError(f"{cls.__name__}.families[{i}] must be a TweezeFamily, got {spec!r}")  # noqa: TRY004
 
-    # ------------------------------------------------------------------ the object: a cube or a tall block
+    # ------------------------------------------------------------------ the object: a tile or a tall block
     def _cube_half(self) -> np.ndarray:
-        """Half extents (m) of the object: ``cube_size`` across, ``cube_height`` tall (a cube in family 0)."""
+        """Half extents (m) of the object: ``cube_size`` across, ``cube_height`` tall."""
         return block_half_extents(self.scene_params)
 
     def _cube_rest(self) -> tuple[np.ndarray, np.ndarray]:
@@ -252,7 +260,7 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
     def _build_rack(self, params: dict[str, float]) -> None:
         """The base task's rack; when the cube's centre lies before the tips' block (family 1's deep block), a block
         of the same height and width runs from ``CUBE_REST_MARGIN`` behind the cube's near face to the tips' block,
-        under the block and the arms there (it carries them as the tips' block does). Family 0's cube lies on the
+        under the block and the arms there (it carries them as the tips' block does). Family 0's tile lies on the
         tips' block: its rack is the base task's."""
         super()._build_rack(params)
         length = params["arm_length"]

@@ -30,7 +30,9 @@ def test_the_interface_the_issue_asks_for(task: str) -> None:
     assert issubclass(cls, base) and cls.task_name == task
     assert cls.stages == base.stages and cls.unacted_dims == base.unacted_dims  # the base task's plan episode
     assert set(cls.family_expert_plans) == set(range(len(cls.families))) and len(cls.families) >= 2
-    assert cls.expert_plan == cls.family_expert_plans[0] == base.expert_plan  # family 0's plan: the base expert
+    assert cls.expert_plan == cls.family_expert_plans[0]  # family 0's plan is the one the pipeline calls the expert
+    if task != "tweeze_mixed":  # its family 0 holds a flat tile, not the base task's cube (envs/tasks/tweeze_mixed.py)
+        assert cls.expert_plan == base.expert_plan  # family 0 is the base task's scenes: its plan is the base expert
     assert len(set(cls.family_expert_plans.values())) == len(cls.families)
     assert cls.family_plan(1) == cls.family_expert_plans[1]
     cls.check_families()
