@@ -171,6 +171,15 @@ def outcome_version(task: str, method: str = "physics") -> str:
     return version_of(outcome_file_digests(task, method))
 
 
+def trial_version(task: str) -> str:
+    """The code version of what decides a fixed plan's trial on ``task`` (``envs.trials``, the variant search):
+    ``outcome_version``'s files without any method's own (``OUTCOME_METHOD_FILES``, ``OUTCOME_OWN_FILES``: the plan
+    and joint environments, x, the RN, the imitation policy). A redesign of the task, an edit of the executor or of
+    the task's PLB entry changes it; an edit of a learner does not."""
+    learners = {f for files in (*OUTCOME_METHOD_FILES.values(), *OUTCOME_OWN_FILES.values()) for f in files}
+    return version_of({f: d for f, d in outcome_file_digests(task).items() if f not in learners})
+
+
 def changed_files(recorded: dict[str, str] | None, current: dict[str, str]) -> list[str] | None:
     """The files whose digest differs between a summary's ``recorded`` ``code_files`` and ``current`` ones (added,
     removed or edited), sorted; None for a summary that recorded none (the caller can say only that the version

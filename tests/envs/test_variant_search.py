@@ -19,6 +19,7 @@ from envs.variant_search import (
     best_tried,
     cem_search,
     check_seeds,
+    earlier_plans,
     render,
     search_variant,
     start_probs,
@@ -113,3 +114,27 @@ def test_the_best_fixed_plan_is_read_from_the_record(tmp_path: Path) -> None:
     assert best_fixed_plan("y_mixed", path) is None and best_fixed_plan("x_mixed", tmp_path / "none.json") is None
     committed = {r["task"]: r for r in json.loads(SEARCH_RECORD.read_text())}
     assert {t: best_fixed_plan(t) for t in committed} == {t: verdict(r)["best_plan"] for t, r in committed.items()}
+
+
+def test_a_redesigned_variant_is_checked_against_the_loopholes_found_before() -> None:
+    """A record of other code (a redesign since) is stale on the page, and the next search checks every plan it
+    found again, beside its own: here the redesign closed the loophole, and the carried plan (a0 = 2) now opens no
+    scene. A record without a code predates the codes and carries nothing."""
+    settings = SearchSettings(rounds=2, per_round=10, scenes_per_plan=4, top=2, check_scenes=40)
+    old = search_variant("x_mixed", settings, with_a_loophole, EXPERTS, families, PRIOR, code="c-old")
+    found = [tuple(c["plan"]) for c in old["checked"] if c["found"]]
+    assert old["code"] == "c-old" and any(p[0] == 2 for p in found)
+    assert earlier_plans([old], "x_mixed", "c-old") == [] and earlier_plans([old], "y_mixed", "c-new") == []
+    assert earlier_plans([{k: v for k, v in old.items() if k != "code"}], "x_mixed", "c-new") == []
+    carried = earlier_plans([old], "x_mixed", "c-new")
+    assert carried == found
+    short = SearchSettings(rounds=1, per_round=2, scenes_per_plan=1, top=1, check_scenes=40)
+    new = search_variant("x_mixed", short, two_families, EXPERTS, families, PRIOR, carried=carried, code="c-new")
+    rows = {tuple(c["plan"]): c for c in new["checked"]}
+    loophole = next(p for p in carried if p[0] == 2)
+    assert rows[loophole]["carried"] and not rows[loophole]["found"] and sum(rows[loophole]["successes"]) == 0
+    assert earlier_plans([new], "x_mixed", "c-newer") == list(dict.fromkeys(
+        [tuple(c["plan"]) for c in new["checked"] if c["found"]] + carried))
+    assert "earlier search" in render([new], "cmd", {"x_mixed": "c-new"})
+    assert "stale: searched on code `c-old`, today `c-new`" in render([old], "cmd", {"x_mixed": "c-new"})
+    assert "stale" not in render([old], "cmd", {"x_mixed": "c-old"}) and "stale" not in render([old], "cmd")

@@ -57,6 +57,22 @@ def test_a_task_module_changes_its_own_version_only(tree: Path) -> None:
     assert {t: v for t, v in after.items() if t != "hammer"} == {t: v for t, v in before.items() if t != "hammer"}
 
 
+def test_a_trials_version_leaves_out_the_learners(tree: Path) -> None:
+    """``trial_version`` (a variant search's record): the task's module and the executor change it, a learner's files
+    (the plan environment, the RN, the imitation policy) change an LN point's version but not a trial's."""
+    before, points = {t: version.trial_version(t) for t in TASKS}, versions()
+    assert len(set(before.values())) == len(TASKS) and before["hammer"] != points["hammer"]
+    for rel in ("envs/plan_env.py", "prl/rn.py", "prl/imitation.py", "envs/joint_env.py"):
+        (tree / rel).write_text("# a learner, changed\n")
+    assert {t: version.trial_version(t) for t in TASKS} == before
+    assert all(v != points[t] for t, v in versions().items())  # the LN points' versions did change
+    (tree / "envs/executor.py").write_text("# the executor, changed\n")
+    after = {t: version.trial_version(t) for t in TASKS}
+    assert all(after[t] != before[t] for t in TASKS)
+    (tree / "envs/tasks/hammer.py").write_text("# the hammer, redesigned\n")
+    assert [t for t in TASKS if version.trial_version(t) != after[t]] == ["hammer"]
+
+
 def test_docs_flows_tests_and_a_new_task_module_change_nothing(tree: Path) -> None:
     before = versions()
     for rel in ("README.md", "docs/results.md", "flows/ablation.py", "envs/synthesis.py", "tests/prl/test_x.py"):
