@@ -17,6 +17,9 @@ the untilted precision disk and the palmar pinch at anchor 4, the hand's little-
 object."""
 TALL_SEED = 5
 """A family 1 scene on which both ``OLD_WINNERS`` touch the tall block."""
+WRAP = (3, 3, 1, 0, 4, 1)
+"""The search's best fixed plan on the variant with the block 5.0-5.7 cm deep (43/50 of the check scenes): a medium
+wrap at anchor 1, lifted by the arm."""
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +80,7 @@ def test_the_family_is_drawn_from_the_seed(env) -> None:
 @pytest.mark.sim
 def test_each_family_needs_its_own_plan(env, executor, monkeypatch) -> None:
     """On a scene of each family its expert lifts the object with the tips (no hand link ever touching it) and the
-    other family's expert does not (measured on the search's 50 balanced check scenes: own expert 25/25 and 24/25,
+    other family's expert does not (measured on the search's 50 balanced check scenes: own expert 24/25 and 24/25,
     crossed 0/25 and 0/25: on family 0 the hand at anchor 5 squeezes too near the hinge, on family 1 the pinch at
     anchor 4 touches the tall block). Nothing is written to a pose while the plan runs."""
     from honesty import no_state_writes
@@ -136,6 +139,31 @@ def test_the_plans_that_solved_both_families_touch_the_tall_block(env, executor)
     assert env.scene_params["family"] == 0
     tile = executor.run(OLD_WINNERS[0])
     assert tile.success and not tile.outcome["hand_touches_cube"], tile.outcome
+
+
+@pytest.mark.sim
+def test_the_wrap_lifts_the_tile_and_not_the_deep_block_unless_its_stand_is_shorter(env, executor,
+                                                                                 monkeypatch) -> None:
+    """The wrap that solved both families while the block stood 5.0-5.7 cm deep (``WRAP``) lifts family 0's tile,
+    and on family 1's scene, the block now 6.5-7.1 cm deep, lifts nothing and touches nothing (5/25 blocks on the
+    search's check scenes). With the stand under the block and the arms 1.2 cm shorter (``CUBE_REST_MARGIN`` patched
+    from 4 mm behind the block to 8 mm under it) the same wrap lifts the same block: the stand under the arms is
+    part of what stops it (the module's docstring)."""
+    import envs.tasks.tweeze_mixed as module
+
+    executor.observe(seed=TWEEZE_SEEDS[0])
+    assert env.scene_params["family"] == 0
+    tile = executor.run(WRAP)
+    assert tile.success and not tile.outcome["hand_touches_cube"], tile.outcome
+    executor.observe(seed=TWEEZE_SEEDS[1])
+    assert env.scene_params["family"] == 1
+    block = executor.run(WRAP)
+    assert not block.success and not block.outcome["hand_touches_cube"], block.outcome
+    assert block.outcome["cube_lift_cm"] < 1.0, block.outcome
+    monkeypatch.setattr(module, "CUBE_REST_MARGIN", -0.008)
+    executor.observe(seed=TWEEZE_SEEDS[1])
+    shorter = executor.run(WRAP)
+    assert shorter.success and not shorter.outcome["hand_touches_cube"], shorter.outcome
 
 
 @pytest.mark.sim
