@@ -118,13 +118,13 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
       palm untilted, anchor 4, palmar pinch, finger squeeze).
     - family 1, ``tall_deep``: arms 25-27 cm long, tips 4.8-5.2 cm apart, and instead of the tile a square block
       2.4-2.7 cm across and 2.6-3.0 times as tall (6.2-8.1 cm), standing 6.5-7.1 cm deeper between the arms on the
-      tips' block, which reaches back under it and under the arms. Its top stands 5-7 cm above the arms, higher than the palm of a
-      pinch or a precision disk comes (4.5-5 cm above them). A hand at anchor 4 reaches from T_gv's centre towards
-      the tips, over the block: closing, the palm or its little-finger side presses on the block (``palm``,
-      ``lf_metacarpal`` or ``lf_proximal``), and a touched object never counts. The hand shifted 3.2 cm towards the
-      butt (anchor 5) closes beside the block, and on these long arms its squeeze is still far enough from the
-      hinge to shut the tips on it. Plan: ``(2, 2, 5, 3, 6, 1)`` (tilt -10 deg about X and about Z, anchor 5,
-      precision disk, finger squeeze). A medium wrap from further back (anchor 1, lifted by the arm), which shuts
+      tips' block, which reaches back under it and under the arms. Its top stands 5-7 cm above the arms, higher than
+      the palm of a pinch or a precision disk comes (4.5-5 cm above them). A hand at anchor 4 reaches from T_gv's
+      centre towards the tips, over the block: closing, the palm or its little-finger side presses on the block
+      (``palm``, ``lf_metacarpal`` or ``lf_proximal``), and a touched object never counts. The hand shifted 3.2 cm
+      towards the butt (anchor 5) closes beside the block, and on these long arms its squeeze is still far enough
+      from the hinge to shut the tips on it. Plan: ``(2, 2, 5, 3, 6, 1)`` (tilt -10 deg about X and about Z, anchor
+      5, precision disk, finger squeeze). A medium wrap from further back (anchor 1, lifted by the arm), which shuts
       the tips on the tile from near the hinge, lifts few of these blocks: the stand under the arms is in its way
       (below).
 
@@ -141,12 +141,12 @@ class PRLTweezeMixedEnv(MixedFamilies, PRLTweezeEnv):
     --family 0 --set height_ratio=0.3,0.45 --plans ... --prior 400 --scenes 20 --first-seed 57000`` had 31/400 prior
     plans succeed, and the ``rn`` decoding of their successes, ``(1, 3, 4, 2, 6, 1)``, lifted 19/20 tiles (the
     family's plan ``(0, 3, 4, 2, 6, 1)`` 19/20, the base task's expert ``(2, 1, 4, 2, 6, 1)`` 14/20). Family 1's
-    block rose from 2.4-2.8 and moved 5 mm nearer the tips (since moved 1.5 cm deeper, below) for the same reason: its decoding ``(0, 2, 5, 2, 6, 1)``
-    touched the old block on 5 of 16 scenes (seeds 56000-56015) and lifts 15 of 16 new ones. Under the variant's own
-    prior (``assets/plb.yaml``: the tweeze prior with every anchor equally likely; the tweeze row gives anchors 4
-    and 5 0.15 and 0.10), the same probe on family 1 (seeds 58000-58019, 48/400 prior plans) decodes ``rn`` ``(2, 3,
-    5, 2, 6, 1)`` 19/20 and ``rn_library`` ``(0, 3, 5, 2, 6, 1)`` 18/20; under the tweeze prior ``rn`` took anchor 3
-    (5/20): family 1's successes split between anchors 3 and 5.
+    block rose from 2.4-2.8 and moved 5 mm nearer the tips (since moved 1.5 cm deeper, below) for the same reason:
+    its decoding ``(0, 2, 5, 2, 6, 1)`` touched the old block on 5 of 16 scenes (seeds 56000-56015) and lifts 15 of
+    16 new ones. Under the variant's own prior (``assets/plb.yaml``: the tweeze prior with every anchor equally
+    likely; the tweeze row gives anchors 4 and 5 0.15 and 0.10), the same probe on family 1 (seeds 58000-58019,
+    48/400 prior plans) decodes ``rn`` ``(2, 3, 5, 2, 6, 1)`` 19/20 and ``rn_library`` ``(0, 3, 5, 2, 6, 1)`` 18/20;
+    under the tweeze prior ``rn`` took anchor 3 (5/20): family 1's successes split between anchors 3 and 5.
 
     Why the block stands 6.5-7.1 cm deep (2026-12-07): with the block 5.0-5.7 cm deep the variant did not hold
     under search (``python -m envs.variant_search --tasks tweeze_mixed``, the default size, 50 balanced check

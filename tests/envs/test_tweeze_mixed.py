@@ -170,9 +170,9 @@ def test_the_wrap_lifts_the_tile_and_not_the_deep_block_unless_its_stand_is_shor
 def test_x_tells_the_families_apart(env, executor, pointnet_path) -> None:
     """The meshes rebuilt from scene_params (the class's builders: the base task's tweezers, the variant's block)
     differ between the families (the tweezers' length in the tool cloud; the object's edge and, above all, its
-    height in the object's: a flat tile, or a block 2.6-3 times as tall as wide), as do their PointNet features; and x_manip's
-    recorded poses place the object much deeper between the arms in family 1 (the family index is in no part of
-    x)."""
+    height in the object's: a flat tile, or a block 2.6-3 times as tall as wide), as do their PointNet features;
+    and x_manip's recorded poses place the object much deeper between the arms in family 1 (the family index is in
+    no part of x)."""
     import prl.shapes as S
     from prl.demo import X_MANIP_LAYOUT, X_MANIP_SAMPLES
     from prl.features import point_features
