@@ -221,6 +221,10 @@ class PipelineConfig:
     """Surface points per tool / object cloud."""
     rn_epochs: int = 30
     """RN training epochs (paper: 200)."""
+    rn_weighted: bool = True
+    """Weight each demo in the RN's loss by prior / proposal (``prl.proposal``), so that the RN learns the plans
+    that succeed under the task's prior; False: the demos as the synthesis drew them (under the adaptive proposal,
+    concentrated on the plans it converged on)."""
     rn_val_fraction: float = 0.2
     """Share of the scenes (by seed) held out from RN training."""
     rn_eval_scenes: int = 4
@@ -272,8 +276,9 @@ class PipelineConfig:
             self.proposal_config()
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        if not isinstance(self.video, bool):
-            raise ConfigError(f"video must be true or false, got {self.video!r}")
+        for name in ("video", "rn_weighted"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         try:
             self.video_spec()
         except ValueError as exc:

@@ -43,6 +43,7 @@ def test_quick_and_paper_profiles() -> None:
     ({"video_fps": 3}, r"video_fps must divide the dataset's 50 fps \(one of \[1, 2, 5, 10, 25, 50\]\), got 3"),
     ({"video_width": 100.5}, "video_width must be an even number of pixels in 16..4096, got 100.5"),
     ({"video": "yes"}, "video must be true or false, got 'yes'"),
+    ({"rn_weighted": 1}, "rn_weighted must be true or false, got 1"),
 ])
 def test_bad_values_are_named(overrides: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
