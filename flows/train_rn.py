@@ -57,7 +57,8 @@ def rn_train_stage(cfg: PipelineConfig, features: Features, out_dir: Path) -> Tr
 
         weights = np.asarray(data.get("weights", np.ones(len(x))))  # prior / proposal of each demo (prl.proposal)
         mlflow.log_metrics({"demo_weight_max": float(weights.max()), "demo_weight_ess": effective_sample_size(weights)})
-        model, _ = train_rn(x[train], y[train], rn_cfg, x[val], y[val], on_epoch=log_epoch, w_train=weights[train] if cfg.rn_weighted else None)
+        w_train = weights[train] if cfg.rn_weighted else None  # None: the demos as drawn (--no-rn-weighted)
+        model, _ = train_rn(x[train], y[train], rn_cfg, x[val], y[val], on_epoch=log_epoch, w_train=w_train)
         acc = dict(zip(plb.dim_names, (float(a) for a in per_dim_accuracy(model, x[val], y[val])), strict=True))
         mlflow.log_metrics({f"val_accuracy/{name}": a for name, a in acc.items()})
         print("RN validation accuracy: " + ", ".join(f"{n} {a:.2f}" for n, a in acc.items()))
