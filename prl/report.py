@@ -21,30 +21,34 @@ from __future__ import annotations
 import datetime
 import os
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from prl.atomic import write_atomic
-from prl.config import JOINT_A2C_METHODS, LN_METHODS, PAPER_LN_DEMO_STEPS, LNConfig
+from prl.config import JOINT_A2C_METHODS, PAPER_LN_DEMO_STEPS
 from prl.constants import REPO_ROOT, TASKS
 from prl.ln_reference import read_references, reference_file_name, reference_note, reference_rows
 from prl.ln_summary import rate_cell, read_summaries, stale_points, stale_section
+from prl.report_points import (
+    GATED_VARIANTS,
+    HAMMER_EXTRA_K,
+    JOINT_FRAMES_PER_STEP,
+    PAPER_TIMESTEPS,
+    PLAN_SEEDS,
+    PLANNED_VARIANTS,
+    Group,
+    equal_frames_budget,
+    group_of,
+    grouped,
+    missing_points,
+    planned_points,
+)
 from prl.robust_stats import probability_of_improvement, stratified_bootstrap_ci
 from prl.task_registry import declared, units_text
 from prl.version import JOINT_METHODS
 
-PAPER_TIMESTEPS = LNConfig().timesteps
-"""The paper's RL budget (3,200 timesteps), the experiment's for every point but joint control at equal frames."""
-PLAN_SEEDS: tuple[int, ...] = (0, 1, 2)
-"""The seeds of every planned point."""
-HAMMER_EXTRA_K: tuple[int, ...] = (320, 640, 2560)
-"""The hammer's further demonstration steps (the paper's ablation axis, beside 0 and 1,280)."""
-JOINT_FRAMES_PER_STEP = 5
-"""Physics frames per joint-control step (``envs.joint_env.JOINT_FRAMES_PER_STEP``; a test keeps them equal): the
-equal-frames budget is the plan runs' frames over this."""
 BOOTSTRAP_REPS = 10_000
 """Bootstrap draws of every interval of the report."""
 BOOTSTRAP_SEED = 0
@@ -55,102 +59,6 @@ VARIANT_TARGET = 0.85
 """A task variant's target (issue #26): the LN pre-trained on the variant's demos, pooled over seeds."""
 COMMAND = "python -m flows.report"
 """The command that makes the report."""
-
-
-@dataclass(frozen=True, order=True)
-class Group:
-    """The points that differ only in their seed: a row of the report."""
-
-    task_index: int
-    """Position of the task in ``prl.constants.TASKS`` (unknown tasks after them): the rows' order."""
-    task: str
-    """Task name."""
-    method_index: int
-    """Position of the method in ``prl.config.LN_METHODS``."""
-    method: str
-    """An LN method (``prl.config.LN_METHODS``)."""
-    demo_steps: int
-    """K."""
-    timesteps: int
-    """RL timesteps trained."""
-
-    @property
-    def at_planned_budget(self) -> bool:
-        """Trained for the budget the experiment compares the method at: the paper's RL timesteps; none for
-        imitation (no RL); the plan runs' physics frames (more timesteps) for joint_bc."""
-        if self.method == "imitation":
-            return True
-        return self.timesteps > PAPER_TIMESTEPS if self.method == "joint_bc" else self.timesteps == PAPER_TIMESTEPS
-
-    @property
-    def label(self) -> str:
-        """``physics K=1280``, ``bc K=1280``, ``joint``, ``imitation K=1280 (ACT, joint space)``; the budget appended
-        unless it is the paper's."""
-        base = "joint control" if self.method == "joint" else f"{self.method} K={self.demo_steps}"
-        if self.method == "imitation":
-            return f"{base} (ACT, joint space)"
-        return base if self.timesteps == PAPER_TIMESTEPS else f"{base}, {self.timesteps:,} steps"
-
-
-def group_of(summary: Mapping[str, Any]) -> Group:
-    """The ``Group`` of one summary."""
-    p = summary["point"]
-    task_index = TASKS.index(p["task"]) if p["task"] in TASKS else len(TASKS)
-    method_index = LN_METHODS.index(p["method"]) if p["method"] in LN_METHODS else len(LN_METHODS)
-    return Group(task_index, p["task"], method_index, p["method"], int(p["demo_steps"]), int(summary["timesteps"]))
-
-
-def grouped(summaries: Mapping[str, Mapping[str, Any]]) -> dict[Group, list[Mapping[str, Any]]]:
-    """The summaries by group (sorted), each group's by seed."""
-    out: dict[Group, list[Mapping[str, Any]]] = {}
-    for s in summaries.values():
-        out.setdefault(group_of(s), []).append(s)
-    return {g: sorted(out[g], key=lambda s: s["point"]["seed"]) for g in sorted(out)}
-
-
-@dataclass(frozen=True)
-class Planned:
-    """One point of the planned experiment (the issue's)."""
-
-    task: str
-    """Task name."""
-    method: str
-    """An LN method (``prl.config.LN_METHODS``)."""
-    demo_steps: int
-    """K."""
-    seed: int
-    """Seed."""
-    equal_frames: bool = False
-    """At the plan runs' physics frames (any budget above the paper's: joint control, joint_bc) rather than 3,200
-    steps."""
-
-    def done_by(self, summary: Mapping[str, Any]) -> bool:
-        """Whether ``summary`` is this point."""
-        p = summary["point"]
-        same = (p["task"], p["method"], p["demo_steps"], p["seed"]) == (self.task, self.method, self.demo_steps,
-                                                                           self.seed)
-        t = int(summary["timesteps"])
-        return same and (t > PAPER_TIMESTEPS if self.equal_frames else t == PAPER_TIMESTEPS or p["method"] == "imitation")
-
-
-def planned_points(tasks: Sequence[str] = TASKS, seeds: Sequence[int] = PLAN_SEEDS) -> list[Planned]:
-    """The experiment of the issue: per task physics K = 1,280, BC K = 1,280, physics K = 0 and joint control at
-    3,200 timesteps and imitation of the same K = 1,280 demonstrations on ``seeds``, joint control and joint_bc
-    (K = 1,280) at the plan runs' frames on the first seed; the hammer also physics K in ``HAMMER_EXTRA_K``."""
-    out = []
-    for t in tasks:
-        arms = [("physics", PAPER_LN_DEMO_STEPS), ("bc", PAPER_LN_DEMO_STEPS), ("physics", 0), ("joint", 0),
-                ("imitation", PAPER_LN_DEMO_STEPS)]
-        arms += [("physics", k) for k in HAMMER_EXTRA_K] if t == "hammer" else []
-        out += [Planned(t, v, k, s) for v, k in arms for s in seeds]
-        out.append(Planned(t, "joint", 0, seeds[0], equal_frames=True))
-        out.append(Planned(t, "joint_bc", PAPER_LN_DEMO_STEPS, seeds[0], equal_frames=True))
-    return out
-
-
-def missing_points(summaries: Mapping[str, Mapping[str, Any]], plan: Sequence[Planned]) -> list[Planned]:
-    """The planned points that no summary is."""
-    return [p for p in plan if not any(p.done_by(s) for s in summaries.values())]
 
 
 def _runs(members: Sequence[Mapping[str, Any]]) -> list[list[float]]:
@@ -271,9 +179,10 @@ def across_tasks_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> l
 
 def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> list[str]:
     """P(physics K = 1,280 > physics K = 0), P(physics K = 1,280 > BC K = 1,280) and, where they ran, P(physics K =
-    1,280 > imitation K = 1,280) and P(physics K = 1,280 > joint_bc K = 1,280), per task that has either pair and
-    over the paper's tasks that have both, each at its planned budget (``Group.at_planned_budget``); then per task
-    the comparisons whose interval leaves out 0.5 (resolved) and those whose interval holds it."""
+    1,280 > imitation K = 1,280) and P(physics K = 1,280 > joint_bc K = 1,280), per task that has either pair, over
+    the paper's tasks that have both and over the variants that have both, each at its planned budget
+    (``Group.at_planned_budget``); then per task the comparisons whose interval leaves out 0.5 (resolved) and those
+    whose interval holds it."""
     def runs_of(method: str, k: int) -> dict[str, list[list[float]]]:
         return {g.task: _runs(m) for g, m in groups.items()
                 if g.method == method and g.demo_steps == k and g.at_planned_budget}
@@ -285,14 +194,16 @@ def improvement_table(groups: Mapping[Group, Sequence[Mapping[str, Any]]]) -> li
     compared = [(name, runs) for i, (name, runs) in enumerate(compared) if i < 2 or runs]
     others = [runs for _, runs in compared]
     tasks = [t for t in dict.fromkeys(g.task for g in groups) if t in ref and any(t in o for o in others)]
-    lines = [f"| comparison | {' | '.join(tasks)} | paper tasks with both |", "|---|" + "---|" * (len(tasks) + 1)]
+    lines = [f"| comparison | {' | '.join(tasks)} | paper tasks with both | variants with both |",
+             "|---|" + "---|" * (len(tasks) + 2)]
     verdicts: dict[str, dict[str, list[str]]] = {t: {"resolved": [], "not resolved": []} for t in tasks}
     for name, other in compared:
         per_task = {t: _poi({t: ref[t]}, {t: other[t]}) if t in other else None for t in tasks}
-        paper = [t for t in tasks if t in other and t in TASKS]
-        overall = _poi({t: ref[t] for t in paper}, {t: other[t] for t in paper}) if paper else None
-        lines.append(f"| {name} | {' | '.join(_ci(*p) if p else '-' for p in per_task.values())} "
-                     f"| {_ci(*overall) if overall else '-'} |")
+        pooled = []
+        for paper in (True, False):  # the paper's tasks, then the variants: never pooled together
+            both = [t for t in tasks if t in other and (t in TASKS) == paper]
+            pooled.append(_poi({t: ref[t] for t in both}, {t: other[t] for t in both}) if both else None)
+        lines.append(f"| {name} | {' | '.join(_ci(*p) if p else '-' for p in [*per_task.values(), *pooled])} |")
         for t, p in per_task.items():
             if p:  # resolved when the interval of P(A > B) leaves out 0.5, the coin flip
                 verdicts[t]["not resolved" if p[1] <= 0.5 <= p[2] else "resolved"].append(f"{name} = {_ci(*p)}")
@@ -407,18 +318,6 @@ def provenance_table(summaries: Mapping[str, Mapping[str, Any]]) -> list[str]:
     return lines
 
 
-def equal_frames_budget(groups: Mapping[Group, Sequence[Mapping[str, Any]]], task: str) -> int | None:
-    """Joint-control steps with the physics frames of ``task``'s K = 1,280 plan runs (mean of their final frames
-    over ``JOINT_FRAMES_PER_STEP``, rounded up to a whole A2C update of 64); None before those runs exist."""
-    frames = [s["rows"][-1]["frames"] for g, m in groups.items() for s in m
-              if g.task == task and g.method == "physics" and g.demo_steps == PAPER_LN_DEMO_STEPS
-              and g.timesteps == PAPER_TIMESTEPS and s["rows"]]
-    if not frames:
-        return None
-    steps = float(np.mean(frames)) / JOINT_FRAMES_PER_STEP
-    return int(np.ceil(steps / 64.0) * 64)
-
-
 def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[Group, Sequence[Any]],
                     results_rel: str) -> list[str]:
     """The planned points without a summary, per task, and the commands that run them."""
@@ -439,23 +338,35 @@ def missing_section(summaries: Mapping[str, Mapping[str, Any]], groups: Mapping[
     budgets = [f"{t}: {b:,}" if (b := equal_frames_budget(groups, t)) else f"{t}: after its K = 1,280 runs"
                for t in dict.fromkeys(p.task for p in missing if p.equal_frames)]
     seeds, tail = ",".join(map(str, PLAN_SEEDS)), f"--results-dir {results_rel}"
-    lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
-                  + "--pointnet-path ...`, which joint control alone does not need; the committed points' demos are "
-                  + "those of `python -m flows.full_pipeline --profile paper --proposal-defensive 0`, the synthesis "
-                  + "recipe their summaries name; imitation reads its "
-                  + "`observation.environment_state`, which a dataset exported before it lacks; an `--output-dir` of each "
-                  + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
-              "", "```",
-              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods physics,bc,joint --demo-steps "
-              + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
-              f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods imitation --demo-steps "
-              + f"{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
-              "python -m flows.ablation $D --tasks hammer --methods physics --demo-steps "
-              + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
-              f"python -m flows.ablation --tasks <task> --methods joint --seeds {PLAN_SEEDS[0]} "
-              + f"--ln-timesteps <equal-frames steps> {tail}",
-              f"python -m flows.ablation $D --tasks <task> --methods joint_bc --demo-steps {PAPER_LN_DEMO_STEPS} "
-              + f"--seeds {PLAN_SEEDS[0]} --ln-timesteps <equal-frames steps> {tail}", "```"]
+    if any(p.task not in PLANNED_VARIANTS for p in missing):
+        lines += ["", "They are run by (D: the paper-profile dataset and its PointNet, `--dataset-root ... "
+                      + "--pointnet-path ...`, which joint control alone does not need; the committed points' demos are "
+                      + "those of `python -m flows.full_pipeline --profile paper --proposal-defensive 0`, the synthesis "
+                      + "recipe their summaries name; imitation reads its "
+                      + "`observation.environment_state`, which a dataset exported before it lacks; an `--output-dir` of each "
+                      + "command's own; the hammer's K = 2,560 needs a dataset with at least 2,560 hammer demos):",
+                  "", "```",
+                  f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods physics,bc,joint --demo-steps "
+                  + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+                  f"python -m flows.ablation $D --tasks {','.join(TASKS)} --methods imitation --demo-steps "
+                  + f"{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+                  "python -m flows.ablation $D --tasks hammer --methods physics --demo-steps "
+                  + f"{','.join(map(str, HAMMER_EXTRA_K))} --seeds {seeds} {tail}",
+                  f"python -m flows.ablation --tasks <task> --methods joint --seeds {PLAN_SEEDS[0]} "
+                  + f"--ln-timesteps <equal-frames steps> {tail}",
+                  f"python -m flows.ablation $D --tasks <task> --methods joint_bc --demo-steps {PAPER_LN_DEMO_STEPS} "
+                  + f"--seeds {PLAN_SEEDS[0]} --ln-timesteps <equal-frames steps> {tail}", "```"]
+    if any(p.task in PLANNED_VARIANTS for p in missing):
+        lines += ["", "Per variant (V: its own dataset, with at least 1,280 demos, and its PointNet, one variant at a "
+                      + f"time, made as `{results_rel}/README.md` says; physics_gated only on "
+                      + f"{', '.join(GATED_VARIANTS)}):",
+                  "", "```",
+                  "python -m flows.ablation $V --tasks <variant> --methods physics,bc,joint,imitation --demo-steps "
+                  + f"0,{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+                  "python -m flows.ablation $V --tasks <variant> --methods physics_gated --demo-steps "
+                  + f"{PAPER_LN_DEMO_STEPS} --seeds {seeds} {tail}",
+                  f"python -m flows.ablation $V --tasks <variant> --methods joint_bc --demo-steps {PAPER_LN_DEMO_STEPS} "
+                  + f"--seeds {seeds} --ln-timesteps <equal-frames steps> {tail}", "```"]
     if budgets:
         lines += ["", "Equal-frames joint-control steps: " + "; ".join(budgets) + "."]
     return lines
@@ -495,7 +406,8 @@ HOW_TO_READ = (
     f"each seed; {BOOTSTRAP_REPS:,} draws, seed {BOOTSTRAP_SEED}): rliable's method (`prl/robust_stats.py`); with 3 "
     f"seeds no seed is trimmed and the IQM is the mean.\n"
     f"- *P(A > B)*: the probability that a seed of A scores above a seed of B (ties count half), averaged over tasks "
-    f"(the last column over the paper's four tasks alone), with its bootstrap interval; 0.5 is no difference.\n"
+    f"(the last two columns over the paper's four tasks and over the task variants, apart), with its bootstrap "
+    f"interval; 0.5 is no difference.\n"
     f"- *Across tasks*: the paper's four tasks and the task variants (`<task>_mixed`) are pooled apart.\n"
     f"- *training window success*: the success rate over the last update's worth of episodes, after the first and "
     f"after the last A2C update, per seed.")

@@ -178,7 +178,7 @@ def test_the_report_command(tmp_path: Path, capsys: pytest.CaptureFixture) -> No
 
 def test_the_reports_joint_frames_per_step_is_the_environments() -> None:
     from envs.joint_env import JOINT_FRAMES_PER_STEP
-    from prl.report import JOINT_FRAMES_PER_STEP as REPORTED
+    from prl.report_points import JOINT_FRAMES_PER_STEP as REPORTED
 
     assert REPORTED == JOINT_FRAMES_PER_STEP
 

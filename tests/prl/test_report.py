@@ -10,14 +10,16 @@ from pathlib import Path
 import pytest
 
 from prl.ln_summary import SummaryError, read_summaries
-from prl.report import (
+from prl.report import elapsed_hours, write_report
+from prl.report_points import (
+    GATED_VARIANTS,
     PAPER_TIMESTEPS,
-    elapsed_hours,
+    PLANNED_VARIANTS,
+    Planned,
     equal_frames_budget,
     grouped,
     missing_points,
     planned_points,
-    write_report,
 )
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "ln"
@@ -59,17 +61,20 @@ def test_the_report_says_what_the_summaries_hold(tmp_path: Path) -> None:
     assert "| all | 5 | 2.5 | 2.5 | 2.4 | 0.1 |" in text  # 5 points of 30 min on one core; 1,700 s + 100 s each
     assert "| method: physics | 3 | 1.5 | 1.5 |" in text and "| method: joint | 1 | 0.5 | 0.5 |" in text
     assert "at least one point was running during 1.5 h" in text  # 00:00-00:30, 01:00-01:30, 02:00-02:30
-    assert "5 of the 77 planned points are done." in text
+    assert "5 of the 155 planned points are done." in text  # 77 on the paper's tasks, 78 on the variants
     assert "| hammer | physics K=1280: 2; bc K=1280: 1,2; physics K=0: 1,2; joint control: 1,2; " in text
     assert "| sweep | physics K=1280: 0,1,2; bc K=1280: 0,1,2;" in text
     assert "![hammer: Fig 8 against timesteps](results/fig8_hammer_timesteps.png)" in text
     assert "Equal-frames joint-control steps: hammer: 492,800;" in text  # 3,200 x 770 frames / 5 per step
+    assert "| tweeze_mixed | physics K=1280: 0,1,2; bc K=1280: 0,1,2; " in text
+    assert ("--tasks <variant> --methods joint_bc --demo-steps 1280 --seeds 0,1,2 --ln-timesteps <equal-frames steps>"
+            in text)
     assert "No committed summary is stale" in text
     assert "/tmp" not in text and str(tmp_path) not in text
 
 
 def test_the_plan_and_what_is_missing() -> None:
-    plan = planned_points()
+    plan = planned_points(variants=())
     assert len(plan) == 4 * (5 * 3 + 2) + 3 * 3  # five arms x 3 seeds + two at equal frames per task; hammer 3 more K
     summaries = read_summaries(FIXTURES)
     missing = missing_points(summaries, plan)
@@ -83,6 +88,23 @@ def test_the_plan_and_what_is_missing() -> None:
     assert equal_frames_budget(groups, "hammer") == 492_800 and equal_frames_budget(groups, "sweep") is None
     assert PAPER_TIMESTEPS == 3200
     assert elapsed_hours([]) == 0.0
+
+
+def test_the_variants_plan_every_method_on_three_seeds() -> None:
+    """A variant plans the paper tasks' five arms on 3 seeds, joint_bc at equal frames on all 3 (not joint control),
+    and physics_gated only where the paper's reward pays failures: 4 x 6 x 3 + 2 x 3 = 78 points."""
+    plan = [p for p in planned_points() if p.task in PLANNED_VARIANTS]
+    assert len(plan) == 78 and len(planned_points()) == 77 + 78
+    arms = {(p.method, p.demo_steps, p.equal_frames) for p in plan if p.task == "hammer_mixed"}
+    assert arms == {("physics", 1280, False), ("physics", 0, False), ("bc", 1280, False), ("joint", 0, False),
+                    ("imitation", 1280, False), ("joint_bc", 1280, True)}
+    assert {p.task for p in plan if p.method == "physics_gated"} == set(GATED_VARIANTS) == {"tweeze_mixed",
+                                                                                         "unscrew_mixed"}
+    assert sorted(p.seed for p in plan if p.task == "sweep_mixed" and p.method == "joint_bc") == [0, 1, 2]
+    summary = {"point": {"task": "tweeze_mixed", "method": "joint_bc", "demo_steps": 1280, "seed": 2},
+               "timesteps": 3200}
+    assert not Planned("tweeze_mixed", "joint_bc", 1280, 2, equal_frames=True).done_by(summary)  # not equal frames
+    assert Planned("tweeze_mixed", "joint_bc", 1280, 2, equal_frames=True).done_by({**summary, "timesteps": 492_800})
 
 
 def test_a_missing_empty_or_malformed_directory_is_named(tmp_path: Path) -> None:
@@ -160,7 +182,8 @@ def test_a_malformed_reference_is_named(tmp_path: Path) -> None:
 def test_the_target_of_a_paper_task_and_of_a_task_variant() -> None:
     """A paper task's target is K = 1,280 pooled >= 0.90; a variant's is its largest K run pooled >= 0.85 (#26),
     with the reward paid on success beside it, and its RN argmax plan >= 0.85; counted by hand."""
-    from prl.report import Group, target_line
+    from prl.report import target_line
+    from prl.report_points import Group
 
     def points(*counts: int) -> list[dict]:
         return [{"eval": {"successes": k, "n": 50}} for k in counts]
@@ -195,7 +218,8 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
     """Across tasks and in P(A > B)'s last column, a variant's seeds never enter the paper tasks' numbers; a task
     with neither comparison gets no column. Every seed's scenes all succeed or all fail, so the bootstrap cannot
     move the numbers: hammer 1.0 alone (IQM 1.00), hammer_mixed 0.0 alone (0.00)."""
-    from prl.report import Group, across_tasks_table, improvement_table
+    from prl.report import across_tasks_table, improvement_table
+    from prl.report_points import Group
 
     def points(*scores: float) -> list[dict]:
         return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
@@ -211,10 +235,12 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
                           "| physics K=0 | hammer_mixed | 1.00 (1.00-1.00) |",
                           "| physics K=1280 | hammer_mixed, sweep_mixed | 0.50 (0.50-0.50) |"]
     poi = improvement_table(groups)
-    assert poi[0] == "| comparison | hammer | hammer_mixed | paper tasks with both |"  # no sweep_mixed column
-    # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last column is the hammer's
-    assert poi[2] == "| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) |"
-    assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - |"
+    assert poi[0] == ("| comparison | hammer | hammer_mixed | paper tasks with both | variants with both |")
+    # hammer: 1.0 beats 0.0 always (1.00); hammer_mixed: 0.0 never beats 1.0 (0.00); the last two columns pool
+    # the paper's tasks (the hammer alone) and the variants (hammer_mixed alone) apart (no sweep_mixed column)
+    assert poi[2] == ("| P(physics K=1280 > physics K=0) | 1.00 (1.00-1.00) | 0.00 (0.00-0.00) | 1.00 (1.00-1.00) "
+                      "| 0.00 (0.00-0.00) |")
+    assert poi[3] == "| P(physics K=1280 > bc K=1280) | - | - | - | - |"
     assert len(poi) == 9 and poi[4] == ""  # no imitation point: no row for it; then each task's verdicts
     assert poi[7:] == ["- hammer: resolved: P(physics K=1280 > physics K=0) = 1.00 (1.00-1.00)",
                        "- hammer_mixed: resolved: P(physics K=1280 > physics K=0) = 0.00 (0.00-0.00)"]
@@ -223,7 +249,8 @@ def test_a_task_variant_is_pooled_apart_from_the_paper_tasks() -> None:
 def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
     """An imitation point (no RL: timesteps 0) counts at the paper's budget, is named as joint-space ACT, shows its
     training loss for a curve, is planned, enters P(physics K=1280 > imitation K=1280) and stays out of Fig 8."""
-    from prl.report import Group, Planned, _window, across_tasks_table, improvement_table
+    from prl.report import _window, across_tasks_table, improvement_table
+    from prl.report_points import Group
 
     def points(*scores: float) -> list[dict]:
         return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
@@ -234,7 +261,7 @@ def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
     assert "| imitation K=1280 (ACT, joint space) | hammer | 0.33 (" in "\n".join(across_tasks_table(groups))
     # physics 1.0 beats imitation's 0.0 twice and ties its 1.0 once, per pair of seeds: (2 + 0.5) / 3
     poi = improvement_table(groups)
-    assert poi[4] == "| P(physics K=1280 > imitation K=1280) | 0.83 (0.50-1.00) | 0.83 (0.50-1.00) |"
+    assert poi[4] == "| P(physics K=1280 > imitation K=1280) | 0.83 (0.50-1.00) | 0.83 (0.50-1.00) | - |"
     # an interval that reaches 0.5 resolves nothing
     assert poi[-1] == "- hammer: not resolved: P(physics K=1280 > imitation K=1280) = 0.83 (0.50-1.00)"
     loss = {"rows": [], "loss": [{"step": 10, "loss": 2.5}, {"step": 20, "loss": 0.25}]}
@@ -246,7 +273,8 @@ def test_imitation_rows_sit_beside_the_plan_space_ones() -> None:
 
 def test_joint_bc_is_compared_at_the_plan_runs_frames() -> None:
     """joint_bc is planned, compared and drawn at equal frames (more timesteps than the paper's), not at 3,200."""
-    from prl.report import Group, Planned, improvement_table
+    from prl.report import improvement_table
+    from prl.report_points import Group
 
     def points(*scores: float) -> list[dict]:
         return [{"eval": {"outcomes": [{"success": s}] * 4}} for s in scores]
@@ -265,7 +293,8 @@ def test_the_reward_table_counts_failures_paid_like_a_success() -> None:
     """Failures paid at least the least-paid success, per method and seed, counted by hand: the unscrew's least
     success is paid 23.5; a failure at 120 (gripped no more) and one tied at 23.5 count, one at 3.0 does not, and an
     outcome without a measure is left out. The sweep's failures are all paid less than its successes."""
-    from prl.report import Group, reward_table
+    from prl.report import reward_table
+    from prl.report_points import Group
 
     def point(seed: int, *outcomes: tuple[bool, float | None]) -> dict:
         return {"point": {"seed": seed}, "eval": {"outcomes": [{"success": ok, "measure": m} for ok, m in outcomes]}}
