@@ -141,29 +141,39 @@ def test_the_plans_that_solved_both_families_touch_the_tall_block(env, executor)
     assert tile.success and not tile.outcome["hand_touches_cube"], tile.outcome
 
 
+FAMILY_1_SEEDS = (1, 5, 7, 8, 10, 11)
+"""The first six family 1 scenes (tall blocks standing deep between the arms)."""
+
+
 @pytest.mark.sim
-def test_the_wrap_lifts_the_tile_and_not_the_deep_block_unless_its_stand_is_shorter(env, executor,
-                                                                                 monkeypatch) -> None:
+def test_the_wrap_lifts_the_tile_and_fewer_deep_blocks_than_with_a_shorter_stand(env, executor,
+                                                                                   monkeypatch) -> None:
     """The wrap that solved both families while the block stood 5.0-5.7 cm deep (``WRAP``) lifts family 0's tile,
-    and on family 1's scene, the block now 6.5-7.1 cm deep, lifts nothing and touches nothing (5/25 blocks on the
-    search's check scenes). With the stand under the block and the arms 1.2 cm shorter (``CUBE_REST_MARGIN`` patched
-    from 4 mm behind the block to 8 mm under it) the same wrap lifts the same block: the stand under the arms is
-    part of what stops it (the module's docstring)."""
+    and at most half of family 1's blocks, now 6.5-7.1 cm deep (5/25 on the search's check scenes). With the stand
+    under the block and the arms 1.2 cm shorter (``CUBE_REST_MARGIN`` patched from 4 mm behind the block to 8 mm
+    under it) the same wrap lifts more of the same blocks: the stand under the arms is part of what stops it (the
+    module's docstring). Counted over six scenes, not read from one: which blocks lift is chaotic, and PhysX on two
+    machines has given scene 1 a lifted and an unlifted block (here: 2 of 6 lifted, 5 of 6 with the shorter stand).
+    Lifted: > 10 cm up, whether or not a hand link touched it."""
     import envs.tasks.tweeze_mixed as module
 
     executor.observe(seed=TWEEZE_SEEDS[0])
     assert env.scene_params["family"] == 0
     tile = executor.run(WRAP)
     assert tile.success and not tile.outcome["hand_touches_cube"], tile.outcome
-    executor.observe(seed=TWEEZE_SEEDS[1])
-    assert env.scene_params["family"] == 1
-    block = executor.run(WRAP)
-    assert not block.success and not block.outcome["hand_touches_cube"], block.outcome
-    assert block.outcome["cube_lift_cm"] < 1.0, block.outcome
+
+    def lifted() -> list[bool]:
+        out = []
+        for seed in FAMILY_1_SEEDS:
+            executor.observe(seed=seed)
+            assert env.scene_params["family"] == 1
+            out.append(float(executor.run(WRAP).outcome["cube_lift_cm"]) > 10.0)
+        return out
+
+    deep = lifted()
     monkeypatch.setattr(module, "CUBE_REST_MARGIN", -0.008)
-    executor.observe(seed=TWEEZE_SEEDS[1])
-    shorter = executor.run(WRAP)
-    assert shorter.success and not shorter.outcome["hand_touches_cube"], shorter.outcome
+    shorter = lifted()
+    assert sum(deep) <= len(FAMILY_1_SEEDS) / 2 < sum(shorter), (deep, shorter)
 
 
 @pytest.mark.sim
